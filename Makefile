@@ -1,0 +1,41 @@
+# Quick start:   make run    (set up .venv, run the main job on embedded defaults)
+#                make test   (set up .venv, run the test suite)
+# Both need only Python >= 3.11 and make; everything else is installed into .venv.
+
+PYTHON ?= $(shell command -v python3.11 2>/dev/null || command -v python3 2>/dev/null)
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test test-all bench lint venv clean
+
+venv: $(STAMP)
+
+$(STAMP): pyproject.toml constraints.txt
+	@test -n "$(PYTHON)" || { echo "error: no python3.11/python3 on PATH"; exit 1; }
+	@$(PYTHON) -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' || \
+	  { echo "error: jaxloco needs Python >= 3.11, found $$($(PYTHON) --version)"; exit 1; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[dev]"
+	@touch $(STAMP)
+
+# The main job on embedded defaults; outputs land in hydra's run directory under outputs/.
+run: $(STAMP)
+	$(BIN)/jaxloco phase-portrait
+
+# The CI suite: everything except full-size end-to-end runs (their small versions run here).
+test: $(STAMP)
+	$(BIN)/python -m pytest -q
+
+test-all: $(STAMP)
+	$(BIN)/python -m pytest -q --runslow
+
+bench: $(STAMP)
+	$(BIN)/python benchmarks/bench_planner.py --json bench_results/bench_planner.json
+
+lint: $(STAMP)
+	$(BIN)/ruff check jaxloco experiments tests benchmarks
+
+clean:
+	rm -rf $(VENV) outputs multirun bench_results .pytest_cache
