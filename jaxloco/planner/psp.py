@@ -35,6 +35,9 @@ from jaxloco.planner import lipm
 
 # |p_x| below this has no switching state (the two orbits are parallel).
 _MIN_STEP = 1e-6
+# Inputs beyond this magnitude (m, m/s) are rejected: no walking CoM state comes near it,
+# and the squares in Eq. 43-44 would overflow long before float64 runs out.
+_MAX_INPUT = 1e3
 # sinh(w t_apex) below this: the lateral foot position is undetermined (Eq. 45, D = 0).
 _MIN_SINH = 1e-9
 
@@ -157,8 +160,8 @@ class Reason(enum.IntFlag):
     """p_y outside (p_y_min, p_y_max) (Eq. 4)."""
     STRIDE_OUT_OF_RANGE = 128
     """sqrt(p_x^2 + p_y^2) outside [stride_min, stride_max]."""
-    NONFINITE_INPUT = 256
-    """The state or action holds NaN or inf."""
+    INVALID_INPUT = 256
+    """The state or action holds NaN, inf, or a magnitude above 1e3 (m, m/s)."""
     NO_APEX = 512
     """(multi-step planning) the CoM does not cross the stance foot moving forward."""
     SWITCH_IN_PAST = 1024
@@ -171,7 +174,7 @@ INFEASIBLE = (
     | Reason.SWITCH_UNREACHABLE
     | Reason.APEX_UNREACHABLE
     | Reason.LATERAL_UNDETERMINED
-    | Reason.NONFINITE_INPUT
+    | Reason.INVALID_INPUT
     | Reason.NO_APEX
     | Reason.SWITCH_IN_PAST
 )
@@ -262,8 +265,10 @@ def plan_from_com_state(com_state, action, params: PSPParams = PSPParams()) -> S
     _check_last_axis(action, "action")
     com_state, action = _broadcast(com_state, action)
 
-    finite = jnp.all(jnp.isfinite(com_state), -1) & jnp.all(jnp.isfinite(action), -1)
-    # Replace non-finite inputs by a harmless nominal step so every field stays finite.
+    finite = jnp.all(jnp.abs(com_state) <= _MAX_INPUT, -1) & jnp.all(
+        jnp.abs(action) <= _MAX_INPUT, -1
+    )  # False for NaN and inf too
+    # Replace invalid inputs by a harmless nominal step so every field stays finite.
     safe_com = jnp.asarray([0.0, params.xd_apex_nominal, params.y_apex_nominal, 0.0])
     safe_act = jnp.asarray([0.3, params.xd_apex_nominal, 0.0])
     com_state = jnp.where(finite[..., None], com_state, safe_com.astype(com_state.dtype))
@@ -323,8 +328,8 @@ def plan_from_com_state(com_state, action, params: PSPParams = PSPParams()) -> S
             Reason.STRIDE_OUT_OF_RANGE,
         )
     )
-    # A non-finite input has one reason only (its other bits would describe the placeholder).
-    reason = jnp.where(finite, reason, jnp.int32(Reason.NONFINITE_INPUT.value))
+    # An invalid input has one reason only (its other bits would describe the placeholder).
+    reason = jnp.where(finite, reason, jnp.int32(Reason.INVALID_INPUT.value))
     terminal = reason != 0
 
     # Eq. 3, on the next apex (its velocities are the action's, mirrored laterally).
