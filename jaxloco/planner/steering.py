@@ -22,6 +22,7 @@ def frame_matrix(heading, lateral_sign):
     Columns: the local x axis ``(cos psi, sin psi)`` and the local y axis
     ``lateral_sign * (-sin psi, cos psi)``.
     """
+    heading, lateral_sign = jnp.asarray(heading), jnp.asarray(lateral_sign)
     c, s = jnp.cos(heading), jnp.sin(heading)
     col_x = jnp.stack([c, s], axis=-1)
     col_y = lateral_sign[..., None] * jnp.stack([-s, c], axis=-1)
