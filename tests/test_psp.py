@@ -173,9 +173,9 @@ def test_general_state_plan_agrees_with_apex_plan():
 
 # --- properties (hypothesis) ---------------------------------------------------------
 
-states = st.tuples(
-    st.floats(-0.14, 0.20), st.floats(0.03, 0.61), st.floats(-0.55, 0.55)
-).map(np.array)
+states = st.tuples(st.floats(-0.14, 0.20), st.floats(0.03, 0.61), st.floats(-0.55, 0.55)).map(
+    np.array
+)
 actions = st.tuples(st.floats(0.1, 0.5), st.floats(0.03, 0.37), st.floats(-0.25, 0.25)).map(
     np.array
 )
@@ -226,9 +226,7 @@ def test_t_apex_decreases_with_next_apex_velocity(state, p_x, yd_next):
 
 
 @settings(max_examples=200, deadline=None)
-@given(
-    st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=7, max_size=7)
-)
+@given(st.lists(st.floats(allow_nan=True, allow_infinity=True, width=64), min_size=7, max_size=7))
 def test_any_input_gives_finite_output(values):
     plan = plan_step(np.array(values[:3]), np.array(values[3:6]), P)
     for leaf in jax.tree.leaves(plan):

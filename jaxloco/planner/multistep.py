@@ -127,12 +127,12 @@ def plan_steps(
         plan = plan_step(apex, action, params)
 
         t_switch_rel = tau + plan.t_switch
+        # Only the re-projection (tau < 0) can put an otherwise safe switch in the past.
+        in_past = apex_ok & (t_switch_rel <= 0.0) & (plan.t_switch > params.t_switch_min)
         reason = (
             plan.reason
             | jnp.where(apex_ok, 0, Reason.NO_APEX.value).astype(jnp.int32)
-            | jnp.where(apex_ok & (t_switch_rel <= 0.0), Reason.SWITCH_IN_PAST.value, 0).astype(
-                jnp.int32
-            )
+            | jnp.where(in_past, Reason.SWITCH_IN_PAST.value, 0).astype(jnp.int32)
         )
         alive_out = alive & (reason == 0)
 

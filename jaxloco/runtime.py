@@ -1,0 +1,54 @@
+"""Process-level set-up shared by the CLI, experiments and benchmarks.
+
+Nothing here runs on import: callers opt in (the library itself holds no global state).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+from pathlib import Path
+
+import jax
+import numpy as np
+
+DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "jaxloco"
+
+
+def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path:
+    """Turn on JAX's persistent compilation cache so a second run skips XLA compiles.
+
+    Directory: ``cache_dir``, else ``$JAXLOCO_CACHE_DIR``, else ``~/.cache/jaxloco/xla``.
+    Only compiles that took at least 0.5 s are stored (small ones are cheaper to redo).
+    """
+    path = Path(cache_dir or os.environ.get("JAXLOCO_CACHE_DIR", DEFAULT_CACHE_DIR / "xla"))
+    path.mkdir(parents=True, exist_ok=True)
+    jax.config.update("jax_compilation_cache_dir", str(path))
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
+    return path
+
+
+def quiet_jax_logs() -> None:
+    """Hide JAX's INFO lines about accelerator plug-ins it did not find (e.g. no TPU)."""
+    logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
+
+
+def to_jsonable(obj):
+    """Convert arrays, numpy scalars and nested containers into JSON-serialisable values."""
+    if isinstance(obj, dict):
+        return {str(k): to_jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [to_jsonable(v) for v in obj]
+    if isinstance(obj, (jax.Array, np.ndarray, np.generic)):
+        return np.asarray(obj).tolist()
+    return obj
+
+
+def write_json(path: str | os.PathLike, obj) -> Path:
+    """Write ``obj`` as indented JSON (arrays become lists); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(to_jsonable(obj), indent=2) + "\n")
+    return path

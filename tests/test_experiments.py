@@ -1,0 +1,95 @@
+"""The hydra config bridge, the ``jaxloco`` CLI, and CI-sized runs of the experiments."""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from omegaconf import OmegaConf
+
+from jaxloco import cli
+from jaxloco.config import config_schema, to_params
+from jaxloco.planner import PSPParams
+
+REPO = Path(__file__).resolve().parent.parent
+JAXLOCO = [sys.executable, "-m", "jaxloco.cli"]
+
+
+def test_config_schema_mirrors_params_and_accepts_overrides():
+    schema = config_schema(PSPParams)
+    cfg = OmegaConf.structured(schema)
+    assert {f.name for f in dataclasses.fields(schema)} == {
+        f.name for f in dataclasses.fields(PSPParams)
+    }
+    assert to_params(PSPParams, cfg) == PSPParams()
+    cfg.h = 0.95  # mutable, unlike the frozen params node
+    assert to_params(PSPParams, cfg).h == 0.95
+    cfg.h = -1.0
+    with pytest.raises(ValueError, match=r"PSPParams\.h must be > 0"):
+        to_params(PSPParams, cfg)
+    with pytest.raises(ValueError, match=r"no field\(s\) \['hh'\]"):
+        to_params(PSPParams, {"hh": 1.0})
+
+
+def test_cli_lists_experiments(capsys):
+    cli.main([])
+    out = capsys.readouterr().out
+    assert "phase-portrait" in out
+
+
+def test_cli_rejects_unknown_experiment():
+    with pytest.raises(SystemExit, match="unknown experiment 'nope'"):
+        cli.main(["nope"])
+
+
+def run_cli(args, tmp_path, timeout=300):
+    env = dict(os.environ, JAXLOCO_CACHE_DIR=str(tmp_path / "xla"))
+    return subprocess.run(
+        [*JAXLOCO, *args, f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_phase_portrait_ci_sized(tmp_path):
+    proc = run_cli(
+        [
+            "phase-portrait",
+            "portrait_steps=4",
+            "steering_steps=[3,2]",
+            "steering_degrees=[18.8,-10]",
+            "lookahead.grid_shape=[5,5,5]",
+            "dpi=60",
+        ],
+        tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    for name in ("phase_portrait.png", "steering_walk.png", "plans.json"):
+        assert (run / name).stat().st_size > 0, name
+    plans = json.loads((run / "plans.json").read_text())
+    assert plans["config"]["lookahead"]["grid_shape"] == [5, 5, 5]
+    assert len(plans["steering_walk"]["footsteps"]) == 6
+    assert plans["steering_walk"]["headings_deg"][-1] == pytest.approx(18.8 * 3 - 10 * 2)
+    # The nominal start walks on the nominal gait with any sensible policy.
+    assert plans["portraits"][0]["safe_steps"] == 4
+
+
+def test_phase_portrait_bad_override_names_the_field(tmp_path):
+    proc = run_cli(["phase-portrait", "planner.h=-1"], tmp_path)
+    assert proc.returncode != 0
+    assert "PSPParams.h must be > 0" in proc.stderr
+
+
+@pytest.mark.slow
+def test_phase_portrait_full_defaults(tmp_path):
+    proc = run_cli(["phase-portrait"], tmp_path, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    plans = json.loads((tmp_path / "run" / "plans.json").read_text())
+    assert plans["steering_walk"]["safe_steps"] == 29
