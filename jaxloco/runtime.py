@@ -5,9 +5,12 @@ Nothing here runs on import: callers opt in (the library itself holds no global 
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
 import json
 import logging
 import os
+import sys
 from pathlib import Path
 
 import jax
@@ -28,6 +31,23 @@ def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
+
+
+@contextlib.contextmanager
+def watchdog(seconds: float, what: str = "this run"):
+    """Fail loudly if the block takes longer than ``seconds``.
+
+    XLA on CPU has been seen to hang inside ``block_until_ready``; rather than wait
+    forever, dump every thread's stack to stderr and exit the process with status 1.
+    """
+    if seconds <= 0:
+        raise ValueError(f"watchdog seconds must be > 0; got {seconds}")
+    print(f"[watchdog] {what}: limit {seconds:.0f} s", file=sys.stderr, flush=True)
+    faulthandler.dump_traceback_later(seconds, exit=True)
+    try:
+        yield
+    finally:
+        faulthandler.cancel_dump_traceback_later()
 
 
 def quiet_jax_logs() -> None:

@@ -199,3 +199,12 @@ def test_lookahead_policy_picks_safe_actions_in_the_box(lookahead):
         assert np.all(action <= np.array(P.action_high) + 1e-12)
     walk = plan_steps(NOMINAL, lookahead, P, num_steps=50)
     assert bool(jnp.all(walk.alive))
+
+
+def test_turn_local_frame_is_reprojection_with_same_sign():
+    com = jnp.array([0.03, 0.25, -0.06, 0.12])
+    for sigma in (1.0, -1.0):
+        for turn in (0.33, -0.2):
+            want = steering.reproject_com_state(com, 0.5, sigma, 0.5 + turn, sigma)
+            got = steering.turn_local_frame(com, sigma, np.cos(turn), np.sin(turn))
+            np.testing.assert_allclose(got, want, atol=1e-14)

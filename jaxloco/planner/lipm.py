@@ -44,6 +44,19 @@ def propagate(x0, xd0, pivot, w, t):
     return pivot + r0 * c + xd0 / w * s, r0 * w * s + xd0 * c
 
 
+def propagate_by_growth(x0, xd0, pivot, w, growth):
+    """:func:`propagate` with the growth factor ``e^{wt}`` given instead of ``t``.
+
+    Eq. 38 gives ``e^{wt}`` directly as its log's argument, so cosh and sinh follow from
+    one division instead of transcendental calls (the planner's hot path).
+    """
+    inv = 1.0 / growth
+    c = 0.5 * (growth + inv)
+    s = 0.5 * (growth - inv)
+    r0 = x0 - pivot
+    return pivot + r0 * c + xd0 / w * s, r0 * w * s + xd0 * c
+
+
 def acceleration(x, pivot, w):
     """LIPM acceleration ``w^2 (x - p)``."""
     return w**2 * (x - pivot)
@@ -70,6 +83,18 @@ def orbit_velocity(x, energy, pivot, w, sign=1.0):
     return jnp.where(valid, xd, 0.0), valid
 
 
+def growth_between(x0, xd0, x1, xd1, pivot, w):
+    """The growth factor ``e^{wt}`` between two states on one orbit (Eq. 37-38).
+
+    ``(x1 - p + xd1 / w) / (x0 - p + xd0 / w)``; see :func:`time_between` for validity.
+    Returns ``(growth, valid)`` with ``growth = 1`` where invalid.
+    """
+    num = w * (x1 - pivot) + xd1
+    den = w * (x0 - pivot) + xd0
+    valid = (num > _TINY) & (den > _TINY)
+    return jnp.where(valid, num, 1.0) / jnp.where(valid, den, 1.0), valid
+
+
 def time_between(x0, xd0, x1, xd1, pivot, w):
     """Time to go from ``(x0, xd0)`` to ``(x1, xd1)`` on one orbit about ``pivot`` (Eq. 38).
 
@@ -79,11 +104,8 @@ def time_between(x0, xd0, x1, xd1, pivot, w):
     with ``t = 0``. The two states must lie on the same orbit; only the unstable component is
     used. Returns ``(t, valid)``.
     """
-    num = w * (x1 - pivot) + xd1
-    den = w * (x0 - pivot) + xd0
-    valid = (num > _TINY) & (den > _TINY)
-    ratio = jnp.where(valid, num, 1.0) / jnp.where(valid, den, 1.0)
-    return jnp.where(valid, jnp.log(ratio) / w, 0.0), valid
+    growth, valid = growth_between(x0, xd0, x1, xd1, pivot, w)
+    return jnp.where(valid, jnp.log(growth) / w, 0.0), valid
 
 
 def apex_of(x, xd, pivot, w):

@@ -21,7 +21,7 @@ from flax import struct
 
 from jaxloco.planner import lipm
 from jaxloco.planner.psp import PSPParams, Reason, StepPlan, plan_step
-from jaxloco.planner.steering import local_to_world, reproject_com_state
+from jaxloco.planner.steering import local_to_world, reproject_com_state, turn_local_frame
 
 Policy = Callable[[jax.Array], jax.Array]
 
@@ -115,10 +115,24 @@ def plan_steps(
         raise ValueError(f"turns must have shape ({num_steps},); got {turns.shape}")
 
     w = params.omega
+    # Headings and lateral signs of every stance frame are known before the scan: do the
+    # trigonometry here, vectorised, and keep the loop body free of it.
+    psi0 = jnp.asarray(heading, dtype)
+    sigma0 = jnp.asarray(lateral_sign, dtype)
+    headings = psi0 + jnp.concatenate([jnp.zeros((1,), dtype), jnp.cumsum(turns)])
+    signs = sigma0 * jnp.where(jnp.arange(num_steps + 1) % 2 == 0, 1.0, -1.0).astype(dtype)
+    xs = (
+        jnp.cos(headings[:-1]),
+        jnp.sin(headings[:-1]),
+        signs[:-1],
+        jnp.cos(turns),
+        jnp.sin(turns),
+        actions,
+    )
 
     def body(carry, xs):
-        com, foot_k, psi, sigma, t0, alive = carry
-        turn, given_action = xs
+        com, foot_k, t0, alive = carry
+        cos_psi, sin_psi, sigma, cos_turn, sin_turn, given_action = xs
         # The apex of this frame (a re-projected state is generally not at one).
         tau, v_apex, apex_ok = lipm.apex_of(com[0], com[1], 0.0, w)
         y_apex, yd_apex = lipm.propagate(com[2], com[3], 0.0, w, tau)
@@ -136,14 +150,16 @@ def plan_steps(
         )
         alive_out = alive & (reason == 0)
 
-        new_foot = foot_k + local_to_world(jnp.stack([plan.p_x, plan.p_y]), psi, sigma)
+        step = jnp.stack([plan.p_x, sigma * plan.p_y])
+        new_foot = foot_k + jnp.stack(
+            [cos_psi * step[0] - sin_psi * step[1], sin_psi * step[0] + cos_psi * step[1]]
+        )
         t_sw_abs = t0 + t_switch_rel
         t_ap_abs = t_sw_abs + plan.t_apex
-        # The next apex, in the new foot's mirrored frame, then rotated by the turn.
+        # The next apex, in the new foot's mirrored frame, then turned to the new heading.
         ns = plan.next_state
         next_local = jnp.stack([jnp.zeros_like(ns[0]), ns[1], ns[0], ns[2]])
-        new_psi, new_sigma = psi + turn, -sigma
-        next_com = reproject_com_state(next_local, psi, new_sigma, new_psi, new_sigma)
+        next_com = turn_local_frame(next_local, -sigma, cos_turn, sin_turn)
 
         out = dict(
             plan=plan,
@@ -152,21 +168,17 @@ def plan_steps(
             action=jnp.asarray(action, dtype),
             tau=tau,
             foot=new_foot,
-            psi=new_psi,
-            sigma=new_sigma,
             t0=t0,
             t_sw=t_sw_abs,
             t_ap=t_ap_abs,
             reason=reason,
             alive=alive_out,
         )
-        return (next_com, new_foot, new_psi, new_sigma, t_ap_abs, alive_out), out
+        return (next_com, new_foot, t_ap_abs, alive_out), out
 
     foot0 = jnp.asarray(foot, dtype)
-    psi0 = jnp.asarray(heading, dtype)
-    sigma0 = jnp.asarray(lateral_sign, dtype)
-    carry0 = (start, foot0, psi0, sigma0, jnp.zeros((), dtype), jnp.array(True))
-    _, out = jax.lax.scan(body, carry0, (turns, actions), unroll=unroll)
+    carry0 = (start, foot0, jnp.zeros((), dtype), jnp.array(True))
+    _, out = jax.lax.scan(body, carry0, xs, unroll=unroll)
 
     steps = out["plan"]
     steps = steps.replace(reason=out["reason"], terminal=out["reason"] != 0)
@@ -177,8 +189,8 @@ def plan_steps(
         actions=out["action"],
         apex_shift=out["tau"],
         footsteps=jnp.concatenate([foot0[None], out["foot"]], axis=0),
-        headings=jnp.concatenate([psi0[None], out["psi"]], axis=0),
-        lateral_signs=jnp.concatenate([sigma0[None], out["sigma"]], axis=0),
+        headings=headings,
+        lateral_signs=signs,
         t_start=out["t0"],
         t_switch=out["t_sw"],
         t_apex=out["t_ap"],

@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import functools
 import math
 
 import jax
@@ -238,12 +239,9 @@ def plan_step(state, action, params: PSPParams = PSPParams()) -> StepPlan:
       :class:`StepPlan`, with ``reward`` (Eq. 3, or ``terminal_reward``) and ``terminal``
       (Eq. 4, the stride bounds, or no solution; see ``reason``).
     """
-    state = jnp.asarray(state)
-    _check_last_axis(state, "state")
-    com = jnp.stack(
-        [jnp.zeros_like(state[..., 0]), state[..., 1], state[..., 0], state[..., 2]], axis=-1
-    )
-    return plan_from_com_state(com, action, params)
+    state, action = _as_float_arrays(state, 3, "state", action, 3, "action")
+    y0, xd0, yd0 = state[..., 0], state[..., 1], state[..., 2]
+    return _plan(None, xd0, y0, yd0, action, params)
 
 
 def plan_from_com_state(com_state, action, params: PSPParams = PSPParams()) -> StepPlan:
@@ -259,25 +257,25 @@ def plan_from_com_state(com_state, action, params: PSPParams = PSPParams()) -> S
     Returns:
       :class:`StepPlan` whose ``t_switch`` counts from ``com_state``.
     """
-    com_state = jnp.asarray(com_state)
-    action = jnp.asarray(action)
-    _check_last_axis(com_state, "com_state", 4)
-    _check_last_axis(action, "action")
-    com_state, action = _broadcast(com_state, action)
-
-    finite = jnp.all(jnp.abs(com_state) <= _MAX_INPUT, -1) & jnp.all(
-        jnp.abs(action) <= _MAX_INPUT, -1
-    )  # False for NaN and inf too
-    # Replace invalid inputs by a harmless nominal step so every field stays finite.
-    safe_com = jnp.asarray([0.0, params.xd_apex_nominal, params.y_apex_nominal, 0.0])
-    safe_act = jnp.asarray([0.3, params.xd_apex_nominal, 0.0])
-    com_state = jnp.where(finite[..., None], com_state, safe_com.astype(com_state.dtype))
-    action = jnp.where(finite[..., None], action, safe_act.astype(action.dtype))
-
+    com_state, action = _as_float_arrays(com_state, 4, "com_state", action, 3, "action")
     x0, xd0, y0, yd0 = (com_state[..., i] for i in range(4))
-    p_x, v_next, yd_next = (action[..., i] for i in range(3))
-    w = params.omega
+    return _plan(x0, xd0, y0, yd0, action, params)
 
+
+def _plan(x0, xd0, y0, yd0, action, params: PSPParams) -> StepPlan:
+    """The planner on components; ``x0 = None`` means an apex state (x0 = 0, folded away)."""
+    p_x, v_next, yd_next = action[..., 0], action[..., 1], action[..., 2]
+    comps = (xd0, y0, yd0, p_x, v_next, yd_next) + (() if x0 is None else (x0,))
+    finite = functools.reduce(jnp.logical_and, [jnp.abs(c) <= _MAX_INPUT for c in comps])
+    # (False for NaN and inf too.) Invalid inputs are replaced by a harmless nominal step
+    # so every field stays finite; the outputs are then zeroed and flagged.
+    nominal = (params.xd_apex_nominal, params.y_apex_nominal, 0.0, 0.3, params.xd_apex_nominal)
+    xd0, y0, yd0, p_x, v_next = (
+        jnp.where(finite, c, d) for c, d in zip((xd0, y0, yd0, p_x, v_next), nominal, strict=True)
+    )
+    yd_next = jnp.where(finite, yd_next, 0.0)
+    x0 = 0.0 if x0 is None else jnp.where(finite, x0, 0.0)
+    w = params.omega
     # Eq. 44: the sagittal orbits xd^2 = w^2 x^2 + E1 (current foot at 0) and
     # xd^2 = w^2 (x - p_x)^2 + v_next^2 (next foot, through its apex) intersect once.
     has_switch = (jnp.abs(p_x) > _MIN_STEP) & finite
@@ -290,20 +288,25 @@ def plan_from_com_state(com_state, action, params: PSPParams = PSPParams()) -> S
     xd_sw, _ = lipm.orbit_velocity(x_sw, v_next**2, p_safe, w, direction)
 
     # Eq. 38: time to the switch on the current orbit, and from there to the next apex.
-    t_sw, sw_ok = lipm.time_between(x0, xd0, x_sw, xd_sw, 0.0, w)
-    t_ap, ap_ok = lipm.time_between(x_sw, xd_sw, p_safe, v_next, p_safe, w)
+    # The log's arguments are the growth factors e^{wt}, which also give cosh and sinh
+    # below without transcendental calls.
+    g_sw, sw_ok = lipm.growth_between(x0, xd0, x_sw, xd_sw, 0.0, w)
+    g_ap, ap_ok = lipm.growth_between(x_sw, xd_sw, p_safe, v_next, p_safe, w)
     sw_ok = sw_ok & has_switch
     ap_ok = ap_ok & has_switch
+    t_sw = jnp.log(g_sw) / w
+    t_ap = jnp.log(g_ap) / w
 
     # Eq. 35 then Eq. 45: lateral state at the switch, then the foot position p_y that
     # makes yd(t_apex) = yd_next. Written as p_y = y_sw + (yd_sw cosh - yd_next) / (w sinh).
-    y_sw, yd_sw = lipm.propagate(y0, yd0, 0.0, w, t_sw)
-    sinh_t = jnp.sinh(w * t_ap)
-    cosh_t = jnp.cosh(w * t_ap)
+    y_sw, yd_sw = lipm.propagate_by_growth(y0, yd0, 0.0, w, g_sw)
+    inv_ap = 1.0 / g_ap
+    sinh_t = 0.5 * (g_ap - inv_ap)
+    cosh_t = 0.5 * (g_ap + inv_ap)
     lateral_ok = ap_ok & (jnp.abs(sinh_t) > _MIN_SINH)
     sinh_safe = jnp.where(lateral_ok, sinh_t, 1.0)
     p_y = y_sw + (yd_sw * cosh_t - yd_next) / (w * sinh_safe)
-    y_ap, yd_ap = lipm.propagate(y_sw, yd_sw, p_y, w, t_ap)
+    y_ap, yd_ap = lipm.propagate_by_growth(y_sw, yd_sw, p_y, w, g_ap)
     geometry_ok = sw_ok & lateral_ok
 
     zero = jnp.zeros_like(x_sw)
@@ -367,13 +370,16 @@ def _bit(condition, flag: Reason):
     return jnp.where(condition, jnp.int32(flag.value), jnp.int32(0))
 
 
-def _broadcast(com_state, action):
-    batch = jnp.broadcast_shapes(com_state.shape[:-1], action.shape[:-1])
-    dtype = jnp.result_type(com_state, action, float)  # ints -> default float
-    return (
-        jnp.broadcast_to(com_state, (*batch, 4)).astype(dtype),
-        jnp.broadcast_to(action, (*batch, 3)).astype(dtype),
-    )
+def _as_float_arrays(a, a_size, a_name, b, b_size, b_name):
+    """Check the last axes, broadcast the leading ones, and promote ints to float."""
+    a, b = jnp.asarray(a), jnp.asarray(b)
+    _check_last_axis(a, a_name, a_size)
+    _check_last_axis(b, b_name, b_size)
+    batch = jnp.broadcast_shapes(a.shape[:-1], b.shape[:-1])
+    dtype = jnp.result_type(a, b, float)  # ints -> default float; float32 stays float32
+    a = jnp.broadcast_to(a, (*batch, a_size)).astype(dtype)
+    b = jnp.broadcast_to(b, (*batch, b_size)).astype(dtype)
+    return a, b
 
 
 def _check_last_axis(x, name: str, size: int = 3) -> None:

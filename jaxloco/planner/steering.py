@@ -54,6 +54,27 @@ def reproject_com_state(com_state, heading, lateral_sign, new_heading, new_later
     return jnp.stack([pos_n[..., 0], vel_n[..., 0], pos_n[..., 1], vel_n[..., 1]], axis=-1)
 
 
+def turn_local_frame(com_state, lateral_sign, cos_turn, sin_turn):
+    """Re-project a CoM state into the frame turned by ``turn`` about the same origin.
+
+    The special case of :func:`reproject_com_state` with the same lateral sign on both
+    sides: with ``D = diag(1, sigma)``, ``D R(-turn) D = R(-sigma turn)``, so the new local
+    coordinates are the old ones rotated by ``-sigma * turn``. Takes the turn's cosine and
+    sine (precomputed, so a scan over steps has no trigonometry in its body).
+    """
+    s = lateral_sign * sin_turn
+    x, xd, y, yd = (com_state[..., i] for i in range(4))
+    return jnp.stack(
+        [
+            cos_turn * x + s * y,
+            cos_turn * xd + s * yd,
+            cos_turn * y - s * x,
+            cos_turn * yd - s * xd,
+        ],
+        axis=-1,
+    )
+
+
 def turn_schedule(segments: Sequence[tuple[int, float]]) -> np.ndarray:
     """Per-step heading changes (radians) from ``[(num_steps, degrees_per_step), ...]``.
 

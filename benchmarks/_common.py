@@ -1,0 +1,113 @@
+"""Shared benchmark plumbing: arguments, timing, machine facts, table and JSON output.
+
+Every benchmark runs as ``python benchmarks/bench_NAME.py [--json PATH] [--quick]``, prints
+a table and writes JSON. Compile time is measured apart from steady-state time (AOT
+``lower().compile()``), and steady-state numbers are medians over repeated calls.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from jaxloco.runtime import quiet_jax_logs, to_jsonable  # noqa: E402
+
+
+def parse_args(description: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--json", type=Path, default=None, help="write results to this file")
+    parser.add_argument("--quick", action="store_true", help="small sizes, few repetitions")
+    parser.add_argument(
+        "--timeout", type=float, default=1800.0, help="watchdog: abort after this many seconds"
+    )
+    args = parser.parse_args()
+    quiet_jax_logs()
+    return args
+
+
+def compile_seconds(jitted, *args) -> tuple[float, object]:
+    """Trace + lower + compile time of a jitted function for these arguments."""
+    t0 = time.perf_counter()
+    compiled = jitted.lower(*args).compile()
+    return time.perf_counter() - t0, compiled
+
+
+def time_calls(fn, *args, repeats: int, inner: int = 1, warmup: int = 2) -> dict:
+    """Per-call wall time of ``fn(*args)`` (blocking on the result), in seconds.
+
+    ``inner`` calls are timed together and divided (for microsecond-scale calls).
+    """
+    for _ in range(warmup):
+        jax.block_until_ready(fn(*args))
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(inner):
+            out = fn(*args)
+            jax.block_until_ready(out)
+        samples.append((time.perf_counter() - t0) / inner)
+    samples.sort()
+    return {
+        "median_s": statistics.median(samples),
+        "p10_s": samples[max(0, len(samples) // 10)],
+        "p90_s": samples[min(len(samples) - 1, (9 * len(samples)) // 10)],
+        "repeats": repeats,
+        "inner": inner,
+    }
+
+
+def machine() -> dict:
+    cpu = platform.processor()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    import mujoco
+
+    return {
+        "backend": jax.default_backend(),
+        "devices": [str(d) for d in jax.devices()],
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "python": platform.python_version(),
+        "jax": jax.__version__,
+        "numpy": np.__version__,
+        "mujoco": mujoco.__version__,
+        "xla_flags": os.environ.get("XLA_FLAGS", ""),
+    }
+
+
+def print_table(title: str, rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
+    """Print rows as a table. ``columns``: (key, header, format spec)."""
+    cells = [[format(r.get(k, ""), f) if r.get(k) is not None else "-" for k, _, f in columns]
+             for r in rows]
+    headers = [h for _, h, _ in columns]
+    widths = [max(len(h), *(len(c[i]) for c in cells)) for i, h in enumerate(headers)]
+    print(f"\n{title}")
+    print("  ".join(h.ljust(w) for h, w in zip(headers, widths, strict=True)))
+    print("  ".join("-" * w for w in widths))
+    for c in cells:
+        print("  ".join(v.ljust(w) for v, w in zip(c, widths, strict=True)))
+
+
+def write_json(path: Path | None, name: str, results: dict) -> None:
+    payload = {"benchmark": name, "machine": machine(), **results}
+    if path is None:
+        return
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(to_jsonable(payload), indent=2) + "\n")
+    print(f"\nresults written to {path}")
