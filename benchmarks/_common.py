@@ -93,8 +93,10 @@ def machine() -> dict:
 
 def print_table(title: str, rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
     """Print rows as a table. ``columns``: (key, header, format spec)."""
-    cells = [[format(r.get(k, ""), f) if r.get(k) is not None else "-" for k, _, f in columns]
-             for r in rows]
+    cells = [
+        [format(r.get(k, ""), f) if r.get(k) is not None else "-" for k, _, f in columns]
+        for r in rows
+    ]
     headers = [h for _, h, _ in columns]
     widths = [max(len(h), *(len(c[i]) for c in cells)) for i, h in enumerate(headers)]
     print(f"\n{title}")

@@ -61,18 +61,59 @@ def bench_transitions(n, repeats):
         return plan.next_state, plan.reward, plan.terminal
 
     rl = jax.jit(rl_fields)
+
+    def output_floor(s, a):
+        # Writes exactly the StepPlan's shapes and dtypes with one arithmetic op each: the
+        # cost of producing the outputs alone (the profile row for the full plan).
+        shapes = jax.eval_shape(lambda s, a: plan_step(s, a, P), s, a)
+        base = s[:, 0] * a[:, 0] + s[:, 1]
+        leaves, treedef = jax.tree.flatten(shapes)
+        out = []
+        for i, leaf in enumerate(leaves):
+            x = base + i
+            x = jnp.broadcast_to(x[:, None], leaf.shape) if len(leaf.shape) == 2 else x
+            out.append(x > 0 if leaf.dtype == jnp.bool_ else x.astype(leaf.dtype))
+        return jax.tree.unflatten(treedef, out)
+
     rows = []
     t_np = time_calls(plan_step_numpy, states, actions, P, repeats=max(3, repeats // 3))
     np_rate = n / t_np["median_s"]
-    rows.append(dict(case="NumPy, all fields (baseline)", size=n, rate=np_rate, **t_np))
-    for name, fn in (("JAX jit, full StepPlan", full), ("JAX jit, RL fields", rl)):
-        compile_s, _ = compile_seconds(fn, s, a)
+    rows.append(
+        dict(
+            case="NumPy, all fields (baseline)",
+            size=n,
+            rate=np_rate,
+            rate_p10=n / t_np["p10_s"],
+            **t_np,
+        )
+    )
+    cases = (
+        ("JAX jit, full StepPlan", full),
+        ("JAX jit, RL fields", rl),
+        ("output floor: write StepPlan-sized outputs (profile)", jax.jit(output_floor)),
+    )
+    for name, fn in cases:
+        compile_s, compiled = compile_seconds(fn, s, a)
         t = time_calls(fn, s, a, repeats=repeats)
         rate = n / t["median_s"]
         rows.append(
-            dict(case=name, size=n, rate=rate, compile_s=compile_s, vs_baseline=rate / np_rate, **t)
+            dict(
+                case=name,
+                size=n,
+                rate=rate,
+                rate_p10=n / t["p10_s"],
+                compile_s=compile_s,
+                vs_baseline=rate / np_rate,
+                fusions=count_fusions(compiled),
+                **t,
+            )
         )
     return rows, err
+
+
+def count_fusions(compiled) -> int:
+    """Loop fusions in the compiled XLA program: each one streams its arrays through memory."""
+    return sum(" fusion(" in line for line in compiled.as_text().splitlines())
 
 
 def bench_latency(repeats):
@@ -132,7 +173,7 @@ def bench_batched_replans(batch, repeats):
 
     fn = jax.jit(jax.vmap(replan))
     s, a = jnp.asarray(states), jnp.asarray(actions)
-    compile_s, _ = compile_seconds(fn, s, a)
+    compile_s, compiled = compile_seconds(fn, s, a)
     t = time_calls(fn, s, a, repeats=repeats)
 
     def numpy_replans(states, actions):
@@ -152,6 +193,7 @@ def bench_batched_replans(batch, repeats):
             rate=rate,
             compile_s=compile_s,
             vs_baseline=rate / np_rate,
+            fusions=count_fusions(compiled),
             **t,
         ),
     ]
@@ -174,9 +216,11 @@ def main():
         [
             ("case", "case", "s"),
             ("rate", "transitions/s", ".3g"),
+            ("rate_p10", "fastest 10%", ".3g"),
             ("median_s", "median s", ".4f"),
             ("compile_s", "compile s", ".2f"),
             ("vs_baseline", "x NumPy", ".1f"),
+            ("fusions", "XLA fusions", "d"),
         ],
     )
     print(f"(NumPy baseline agrees with the JAX planner: max |next_state diff| {np_err:.1e})")
@@ -202,6 +246,7 @@ def main():
             ("median_s", "median s", ".4f"),
             ("compile_s", "compile s", ".2f"),
             ("vs_baseline", "x NumPy", ".1f"),
+            ("fusions", "XLA fusions", "d"),
         ],
     )
     print("target: >= 3e6 replans/s")

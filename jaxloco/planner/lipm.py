@@ -117,12 +117,22 @@ def apex_of(x, xd, pivot, w):
     crosses the pivot moving forward (``E > 0`` and ``xd > 0``). Returns
     ``(t_to_apex, xd_apex, valid)``.
     """
+    t, v_apex, _, valid = apex_growth_of(x, xd, pivot, w)
+    return t, v_apex, valid
+
+
+def apex_growth_of(x, xd, pivot, w):
+    """:func:`apex_of` plus the growth factor ``e^{wt}`` (for :func:`propagate_by_growth`).
+
+    Returns ``(t_to_apex, xd_apex, growth, valid)``; ``growth = 1`` where invalid.
+    """
     energy = orbital_energy(x, xd, pivot, w)
     valid = (energy > _TINY) & (xd > 0.0)
     v_apex = jnp.sqrt(jnp.where(valid, energy, 1.0))
-    t, t_valid = time_between(x, xd, pivot, v_apex, pivot, w)
-    valid = valid & t_valid
-    return jnp.where(valid, t, 0.0), jnp.where(valid, v_apex, 0.0), valid
+    growth, g_valid = growth_between(x, xd, pivot, v_apex, pivot, w)
+    valid = valid & g_valid
+    growth = jnp.where(valid, growth, 1.0)
+    return jnp.log(growth) / w, jnp.where(valid, v_apex, 0.0), growth, valid
 
 
 def surface_height(x, xd, xdd, pivot, slope, height):

@@ -20,7 +20,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxloco.planner import lipm
-from jaxloco.planner.psp import PSPParams, Reason, StepPlan, plan_step
+from jaxloco.planner.psp import PSPParams, Reason, StepPlan, plan_apex_components
 from jaxloco.planner.steering import local_to_world, reproject_com_state, turn_local_frame
 
 Policy = Callable[[jax.Array], jax.Array]
@@ -134,11 +134,12 @@ def plan_steps(
         com, foot_k, t0, alive = carry
         cos_psi, sin_psi, sigma, cos_turn, sin_turn, given_action = xs
         # The apex of this frame (a re-projected state is generally not at one).
-        tau, v_apex, apex_ok = lipm.apex_of(com[0], com[1], 0.0, w)
-        y_apex, yd_apex = lipm.propagate(com[2], com[3], 0.0, w, tau)
+        tau, v_apex, growth, apex_ok = lipm.apex_growth_of(com[0], com[1], 0.0, w)
+        y_apex, yd_apex = lipm.propagate_by_growth(com[2], com[3], 0.0, w, growth)
         apex = jnp.stack([y_apex, v_apex, yd_apex])
         action = policy(apex) if callable(policy) else given_action
-        plan = plan_step(apex, action, params)
+        # The component-wise core: no stack-then-slice of the apex state in the loop.
+        plan = plan_apex_components(y_apex, v_apex, yd_apex, jnp.asarray(action, dtype), params)
 
         t_switch_rel = tau + plan.t_switch
         # Only the re-projection (tau < 0) can put an otherwise safe switch in the past.

@@ -240,8 +240,15 @@ def plan_step(state, action, params: PSPParams = PSPParams()) -> StepPlan:
       (Eq. 4, the stride bounds, or no solution; see ``reason``).
     """
     state, action = _as_float_arrays(state, 3, "state", action, 3, "action")
-    y0, xd0, yd0 = state[..., 0], state[..., 1], state[..., 2]
-    return _plan(None, xd0, y0, yd0, action, params)
+    return plan_apex_components(state[..., 0], state[..., 1], state[..., 2], action, params)
+
+
+def plan_apex_components(y_apex, xd_apex, yd_apex, action, params: PSPParams) -> StepPlan:
+    """:func:`plan_step` with the apex state given as three same-shape arrays.
+
+    No shape checks or broadcasting: for inner loops that already hold the components.
+    """
+    return _plan(None, xd_apex, y_apex, yd_apex, action, params)
 
 
 def plan_from_com_state(com_state, action, params: PSPParams = PSPParams()) -> StepPlan:
