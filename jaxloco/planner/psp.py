@@ -276,7 +276,8 @@ def _plan(x0, xd0, y0, yd0, action, params: PSPParams) -> StepPlan:
     finite = functools.reduce(jnp.logical_and, [jnp.abs(c) <= _MAX_INPUT for c in comps])
     # (False for NaN and inf too.) Invalid inputs are replaced by a harmless nominal step
     # so every field stays finite; the outputs are then zeroed and flagged.
-    nominal = (params.xd_apex_nominal, params.y_apex_nominal, 0.0, 0.3, params.xd_apex_nominal)
+    p_x_mid = 0.5 * (params.p_x_min + params.p_x_max)
+    nominal = (params.xd_apex_nominal, params.y_apex_nominal, 0.0, p_x_mid, params.xd_apex_nominal)
     xd0, y0, yd0, p_x, v_next = (
         jnp.where(finite, c, d) for c, d in zip((xd0, y0, yd0, p_x, v_next), nominal, strict=True)
     )
