@@ -26,13 +26,24 @@ def config_schema(params_cls: type) -> type:
     hints = typing.get_type_hints(params_cls)
     fields = []
     for f in dataclasses.fields(params_cls):
-        if f.default is not dataclasses.MISSING:
-            spec = dataclasses.field(default=f.default)
+        hint = hints[f.name]
+        default = f.default
+        if typing.get_origin(hint) is tuple:
+            # OmegaConf has no tuples: a list in the config, a tuple again in to_params.
+            args = set(typing.get_args(hint)) - {Ellipsis}
+            hint = list[args.pop()] if len(args) == 1 else list[typing.Any]
+            if default is not dataclasses.MISSING:
+                default_list = list(default)
+                spec = dataclasses.field(default_factory=lambda d=default_list: list(d))
+                fields.append((f.name, hint, spec))
+                continue
+        if default is not dataclasses.MISSING:
+            spec = dataclasses.field(default=default)
         elif f.default_factory is not dataclasses.MISSING:
             spec = dataclasses.field(default_factory=f.default_factory)
         else:
             spec = dataclasses.field()
-        fields.append((f.name, hints[f.name], spec))
+        fields.append((f.name, hint, spec))
     schema = dataclasses.make_dataclass(f"{params_cls.__name__}Config", fields)
     schema.__doc__ = f"Hydra schema for :class:`{params_cls.__module__}.{params_cls.__name__}`."
     schema.__module__ = __name__
@@ -51,4 +62,9 @@ def to_params(params_cls: type, node):
     unknown = sorted(set(values) - known)
     if unknown:
         raise ValueError(f"{params_cls.__name__} has no field(s) {unknown}; valid: {sorted(known)}")
+    hints = typing.get_type_hints(params_cls)
+    values = {
+        k: tuple(v) if typing.get_origin(hints[k]) is tuple and isinstance(v, list) else v
+        for k, v in values.items()
+    }
     return params_cls(**values)

@@ -1,0 +1,59 @@
+"""Evaluating step policies: the survival basin, and the learned policy and value as functions.
+
+**Survival basin**: the fraction of apex states drawn uniformly from the box of Eq. 1 from
+which a deterministic policy walks ``num_steps`` steps without a terminal condition.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+
+from jaxloco.learning import policy as pol
+from jaxloco.learning import rbf
+from jaxloco.learning.starts import StartStates, uniform_states
+from jaxloco.planner import PSPParams, plan_steps
+
+
+def mean_policy(params: pol.ActorCriticParams, grid: rbf.RBFGrid, psp: PSPParams):
+    """The deterministic policy ``state (3,) -> action (3,)``: the mean, clipped to the box."""
+    low, high = jnp.asarray(psp.action_low), jnp.asarray(psp.action_high)
+
+    def policy(state):
+        _, mean, _ = pol.network_outputs(params, rbf.local_features(grid, state))
+        return pol.mean_action(mean, low.astype(mean.dtype), high.astype(mean.dtype))
+
+    return policy
+
+
+def value_function(params: pol.ActorCriticParams, grid: rbf.RBFGrid):
+    """The learned value ``state (3,) -> v(s)`` (the paper's walking-risk indicator)."""
+
+    def value(state):
+        return pol.network_outputs(params, rbf.local_features(grid, state))[0]
+
+    return value
+
+
+def steps_survived(policy, states, psp: PSPParams, num_steps: int = 50):
+    """``(n,)`` number of safe steps the policy takes from each apex state (max num_steps)."""
+    return jax.vmap(lambda s: plan_steps(s, policy, psp, num_steps=num_steps).num_safe_steps)(
+        states
+    )
+
+
+def survival_basin(
+    policy,
+    psp: PSPParams,
+    key,
+    num_states: int = 4096,
+    num_steps: int = 50,
+    spec: StartStates = StartStates(),
+):
+    """Fraction of uniform box states from which ``policy`` survives ``num_steps`` steps.
+
+    Returns ``(fraction, states (n, 3), steps (n,))``.
+    """
+    states = uniform_states(key, num_states, spec)
+    steps = steps_survived(policy, states, psp, num_steps)
+    return jnp.mean(steps == num_steps), states, steps
