@@ -71,10 +71,26 @@ class ActorCriticConfig:
     """``sgd``: Algorithm 1 as written (steps alpha, beta on the summed episode updates).
     ``adam``: the same update direction through Adam (optax), steps alpha, beta per channel;
     robust to many episodes updating the same weights in one batch."""
+    normalize: str = "none"
+    """``none``: the summed episode updates (Algorithm 1). ``visits``: each weight's sum is
+    divided by ``1 + sum phi`` over the batch, i.e. averaged over the samples that touched
+    it, so a step moves a cell towards the mean of its own evidence (stable with many
+    episodes per batch; alpha, beta become fractions)."""
+    spread_step_scale: float = 1.0
+    """The log-spread channels step with ``spread_step_scale * alpha`` (1 in Algorithm 1).
+    Spreads should move more cautiously than means: one unlucky batch can collapse them."""
+    natural_gradient: bool = False
+    """Precondition the actor's direction by the inverse Fisher information of a normal
+    distribution (d/d mean x sigma^2, d/d log-spread x 1/2): the mean then moves in action
+    units, by (a - mean) x advantage, whatever the spread. Plain gradient when False."""
+    normalize_advantage: bool = False
+    """Centre and scale the actor's forward-view TD sums A^theta by their mean and standard
+    deviation over the batch, and clip them to +-3 (the critic's are left as they are):
+    bounded actor steps whatever the reward scale and however wrong the critic still is."""
     seed: int = 0
 
     def __post_init__(self):
-        for name in ("alpha", "beta", "init_scale", "spread_target"):
+        for name in ("alpha", "beta", "init_scale", "spread_target", "spread_step_scale"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"ActorCriticConfig.{name} must be > 0; got {getattr(self, name)}")
         for name in ("gamma", "lambda_theta", "lambda_w"):
@@ -82,6 +98,10 @@ class ActorCriticConfig:
                 raise ValueError(
                     f"ActorCriticConfig.{name} must be in [0, 1]; got {getattr(self, name)}"
                 )
+        if self.normalize not in ("none", "visits"):
+            raise ValueError(
+                f"ActorCriticConfig.normalize must be 'none' or 'visits'; got {self.normalize!r}"
+            )
         if self.optimizer not in OPTIMIZERS:
             raise ValueError(
                 f"ActorCriticConfig.optimizer must be one of {OPTIMIZERS}; got {self.optimizer!r}"
@@ -134,6 +154,7 @@ def rollout(params, key, starts, grid: rbf.RBFGrid, psp: PSPParams, num_steps: i
         state, active = carry
         feats = jax.vmap(lambda s: rbf.local_features(grid, s))(state)
         value, mean, log_spread = jax.vmap(pol.network_outputs, in_axes=(None, 0))(params, feats)
+        mean = pol.sampling_mean(mean, low, high)
         keys = jax.random.split(key_t, state.shape[0])
         action = jax.vmap(pol.sample, in_axes=(0, 0, 0, None, None))(
             keys, mean, log_spread, low, high
@@ -141,6 +162,10 @@ def rollout(params, key, starts, grid: rbf.RBFGrid, psp: PSPParams, num_steps: i
         d_mean, d_log_spread = jax.vmap(pol.score, in_axes=(0, 0, 0, None, None))(
             action, mean, log_spread, low, high
         )
+        # A sample whose score is not finite (float32 far in a tail) teaches nothing.
+        finite = jnp.all(jnp.isfinite(d_mean) & jnp.isfinite(d_log_spread), axis=-1)
+        d_mean = jnp.where(finite[:, None], d_mean, 0.0)
+        d_log_spread = jnp.where(finite[:, None], d_log_spread, 0.0)
         plan = plan_step(state, action, psp)
         out = dict(
             features=feats,
@@ -182,16 +207,40 @@ def update_direction(params, ro: Rollout, cfg: ActorCriticConfig):
     num_steps = delta.shape[0]
     discount = cfg.gamma ** jnp.arange(num_steps, dtype=delta.dtype)  # I_t
 
+    actor_shift, actor_scale, clip_advantage = 0.0, 1.0, jnp.inf
+    if cfg.normalize_advantage:
+        # Forward-view sums A^theta for every step, to measure their spread over the batch.
+        def accumulate(acc, t):
+            acc = delta[t] + cfg.lambda_theta * acc
+            return acc, acc
+
+        _, adv = jax.lax.scan(accumulate, jnp.zeros_like(delta[0]), jnp.arange(num_steps)[::-1])
+        active = ro.active[::-1]
+        n_active = jnp.maximum(jnp.sum(active), 1)
+        adv_mean = jnp.sum(jnp.where(active, adv, 0.0)) / n_active
+        adv_var = jnp.sum(jnp.where(active, (adv - adv_mean) ** 2, 0.0)) / n_active
+        actor_shift, actor_scale = adv_mean, 1.0 / (jnp.sqrt(adv_var) + 1e-6)
+    clip_advantage = 3.0 if cfg.normalize_advantage else jnp.inf  # in standard deviations
+    if cfg.natural_gradient:
+        d_mean = ro.d_mean * jnp.exp(2.0 * ro.log_spread)
+        # Clipped like the advantages below: one sample in a rarely visited cell (which
+        # visit-averaging gives a full step) must not collapse or blow up a spread.
+        d_log_spread = jnp.clip(0.5 * ro.d_log_spread, -2.0, 2.0)
+    else:
+        d_mean, d_log_spread = ro.d_mean, ro.d_log_spread
+
     def backward(carry, t):
         table, bias, acc_w, acc_th = carry
         acc_w = delta[t] + cfg.lambda_w * acc_w
         acc_th = delta[t] + cfg.lambda_theta * acc_th
         scale = jnp.where(ro.active[t], discount[t], 0.0)
+        adv = jnp.clip(actor_scale * (acc_th - actor_shift), -clip_advantage, clip_advantage)
         coef = jnp.concatenate(
             [
                 (scale * acc_w)[:, None],
-                (scale * acc_th)[:, None] * ro.d_mean[t],
-                (scale * acc_th)[:, None] * ro.d_log_spread[t],
+                (scale * adv)[:, None] * d_mean[t],
+                (scale * adv)[:, None] * d_log_spread[t],
+                ro.active[t].astype(delta.dtype)[:, None],  # visit mass (last channel)
             ],
             axis=-1,
         )
@@ -201,14 +250,25 @@ def update_direction(params, ro: Rollout, cfg: ActorCriticConfig):
         return (table, bias, acc_w, acc_th), None
 
     zeros = jnp.zeros(delta.shape[1], delta.dtype)
-    init = (jnp.zeros_like(params.table), jnp.zeros_like(params.bias), zeros, zeros)
+    channels = params.table.shape[-1] + 1
+    init = (
+        jnp.zeros((*params.table.shape[:-1], channels), delta.dtype),
+        jnp.zeros((channels,), delta.dtype),
+        zeros,
+        zeros,
+    )
     (table, bias, _, _), _ = jax.lax.scan(backward, init, jnp.arange(num_steps)[::-1])
+    if cfg.normalize == "visits":
+        table = table[..., :-1] / (1.0 + table[..., -1:])
+        bias = bias[:-1] / (1.0 + bias[-1])
+    else:
+        table, bias = table[..., :-1], bias[:-1]
     return pol.ActorCriticParams(table=table, bias=bias), delta
 
 
 def step_sizes(cfg: ActorCriticConfig):
-    """Per-output step sizes: beta for the value channel, alpha for the six policy ones."""
-    return jnp.asarray([cfg.beta] + [cfg.alpha] * 6)
+    """Per-output step sizes: beta (value), alpha (means), spread_step_scale * alpha (spreads)."""
+    return jnp.asarray([cfg.beta] + [cfg.alpha] * 3 + [cfg.spread_step_scale * cfg.alpha] * 3)
 
 
 def make_optimizer(cfg: ActorCriticConfig) -> optax.GradientTransformation:

@@ -48,10 +48,24 @@ def init_params(key, grid: rbf.RBFGrid, mean_bias=(0.3, 0.2, 0.0), init_scale=0.
     return ActorCriticParams(table, bias)
 
 
+# Numerical guards, far from any useful policy (the action box is 0.34-0.5 wide): spreads
+# in [1e-3, 2] (log-spreads clipped), and for sampling and scoring a mean at most half a
+# box width outside the box. Beyond that a truncated normal is all but a point mass or an
+# exponential at the bound, its score stops pointing anywhere useful, and float32
+# overflows. Updates still act on the raw weights, so a mean outside can come back.
+LOG_SPREAD_MIN, LOG_SPREAD_MAX = -6.907755, 0.693147
+
+
 def network_outputs(params: ActorCriticParams, features: rbf.LocalFeatures):
     """``(value, mean (3,), log_spread (3,))`` of one state."""
     out = rbf.evaluate(params.table, params.bias, features)
-    return out[0], out[MEAN], out[LOG_SPREAD]
+    return out[0], out[MEAN], jnp.clip(out[LOG_SPREAD], LOG_SPREAD_MIN, LOG_SPREAD_MAX)
+
+
+def sampling_mean(mean, low, high):
+    """The mean used for sampling and scoring: within half a box width of the box."""
+    margin = 0.5 * (high - low)
+    return jnp.clip(mean, low - margin, high + margin)
 
 
 def log_normaliser(lower, upper):
