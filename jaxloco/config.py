@@ -19,15 +19,19 @@ from omegaconf import DictConfig, OmegaConf
 
 
 @functools.cache
-def config_schema(params_cls: type) -> type:
-    """A mutable dataclass with ``params_cls``'s fields, types and defaults."""
+def config_schema(params_cls: type, defaults=None) -> type:
+    """A mutable dataclass with ``params_cls``'s fields and types.
+
+    Defaults are the class's own, or the field values of ``defaults`` (an instance, e.g. a
+    preset) when given.
+    """
     if not dataclasses.is_dataclass(params_cls):
         raise TypeError(f"{params_cls!r} is not a dataclass")
     hints = typing.get_type_hints(params_cls)
     fields = []
     for f in dataclasses.fields(params_cls):
         hint = hints[f.name]
-        default = f.default
+        default = f.default if defaults is None else getattr(defaults, f.name)
         if typing.get_origin(hint) is tuple:
             # OmegaConf has no tuples: a list in the config, a tuple again in to_params.
             args = set(typing.get_args(hint)) - {Ellipsis}

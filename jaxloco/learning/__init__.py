@@ -1,0 +1,40 @@
+"""RL-PSP: the RBF actor-critic step policy (paper Section II-B/C, Algorithm 1)."""
+
+from jaxloco.learning.actor_critic import (
+    ActorCriticConfig,
+    TrainState,
+    init_train_state,
+    make_train_iteration,
+)
+from jaxloco.learning.checkpoint import (
+    LearnedPlanner,
+    load_checkpoint_config,
+    load_planner,
+    save_checkpoint,
+)
+from jaxloco.learning.evaluation import mean_policy, steps_survived, survival_basin, value_function
+from jaxloco.learning.rbf import RBFGrid
+from jaxloco.learning.starts import StartStates
+from jaxloco.learning.training import FAST, EvalConfig, TrainConfig, TrainResult, train
+
+__all__ = [
+    "FAST",
+    "ActorCriticConfig",
+    "EvalConfig",
+    "LearnedPlanner",
+    "RBFGrid",
+    "StartStates",
+    "TrainConfig",
+    "TrainResult",
+    "TrainState",
+    "init_train_state",
+    "load_checkpoint_config",
+    "load_planner",
+    "make_train_iteration",
+    "mean_policy",
+    "save_checkpoint",
+    "steps_survived",
+    "survival_basin",
+    "train",
+    "value_function",
+]

@@ -1,0 +1,171 @@
+"""RL-PSP training speed: wall time to a survival basin, transitions/s, memory, features.
+
+    python benchmarks/bench_learning.py [--json PATH] [--quick]
+
+Targets (issue 3, 2 CPU cores): a policy with survival basin >= 50% in <= 10 s, compile
+included (reported apart). Baselines measured in the same run: the paper's exact
+Algorithm 1 configuration (plain summed updates, alpha = beta = 3e-5) given the same
+iteration budget, and dense evaluation of all 30,240 RBF features against the local one.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import resource
+import time
+
+import jax
+import jax.numpy as jnp
+from _common import compile_seconds, parse_args, print_table, time_calls, write_json
+
+from jaxloco.learning import FAST, ActorCriticConfig, EvalConfig, TrainConfig, rbf, train
+from jaxloco.learning import policy as pol
+from jaxloco.learning.actor_critic import init_train_state
+from jaxloco.learning.training import params_fingerprint
+from jaxloco.runtime import watchdog
+
+THRESHOLDS = (0.30, 0.40, 0.50)
+
+
+def time_to_basin(result, threshold):
+    for row in result.history:
+        if row.get("basin", -1.0) >= threshold:
+            return row["wall_s"]
+    return None
+
+
+def run_training(name, config):
+    t0 = time.perf_counter()
+    result = train(config, progress=False)
+    total = time.perf_counter() - t0
+    ac = config.actor_critic
+    iterations = len(result.history)
+    env_steps = iterations * ac.episodes_per_iteration * ac.max_episode_steps
+    lengths = sum(row["mean_length"] for row in result.history) * ac.episodes_per_iteration
+    row = dict(
+        case=name,
+        iterations=iterations,
+        best_basin=result.best_basin,
+        total_s=total,
+        compile_s=result.compile_seconds,
+        train_s=result.train_seconds,
+        eval_s=result.eval_seconds,
+        transitions_per_s=env_steps / max(result.train_seconds, 1e-9),
+        live_transitions_per_s=lengths / max(result.train_seconds, 1e-9),
+        stop_reason=result.stop_reason,
+        fingerprint=params_fingerprint(result.best_params),
+    )
+    for th in THRESHOLDS:
+        row[f"t_basin_{int(th * 100)}"] = time_to_basin(result, th)
+    return row, result
+
+
+def bench_features(n, repeats):
+    grid = rbf.RBFGrid()
+    params = init_train_state(ActorCriticConfig(), grid).params
+    states = jax.random.uniform(
+        jax.random.key(0), (n, 3), minval=jnp.asarray(grid.low), maxval=jnp.asarray(grid.high)
+    )
+
+    def local(s):
+        return jax.vmap(lambda x: pol.network_outputs(params, rbf.local_features(grid, x))[1])(s)
+
+    table = rbf.unpad(grid, params.table).reshape(-1, pol.NUM_OUTPUTS)
+
+    def dense(s):
+        phi = jax.vmap(lambda x: rbf.dense_features(grid, x))(s)
+        return (phi @ table + params.bias)[:, pol.MEAN]
+
+    rows = []
+    for name, fn in (("dense: all 30,240 Gaussians (baseline)", dense), ("local window", local)):
+        jitted = jax.jit(fn)
+        comp, _ = compile_seconds(jitted, states)
+        t = time_calls(jitted, states, repeats=repeats)
+        rows.append(dict(case=name, compile_s=comp, per_state_us=t["median_s"] / n * 1e6))
+    rows[1]["vs_baseline"] = rows[0]["per_state_us"] / rows[1]["per_state_us"]
+    got, want = jax.jit(local)(states), jax.jit(dense)(states)
+    max_diff = float(jnp.max(jnp.abs(got - want)))
+    return rows, max_diff
+
+
+def main():
+    args = parse_args(__doc__.splitlines()[0])
+    max_iterations = 60 if args.quick else 300
+    fast = TrainConfig(
+        actor_critic=dataclasses.replace(FAST, max_iterations=max_iterations),
+        evaluation=EvalConfig(every=10, num_states=2048),
+    )
+    paper = TrainConfig(
+        actor_critic=dataclasses.replace(
+            ActorCriticConfig(),
+            episodes_per_iteration=FAST.episodes_per_iteration,
+            max_episode_steps=FAST.max_episode_steps,
+            max_iterations=max_iterations,
+        ),
+        evaluation=EvalConfig(every=10, num_states=2048),
+    )
+    with watchdog(args.timeout, "bench_learning"):
+        rows = []
+        fast_row, fast_result = run_training("FAST preset (stops at spread < 0.07)", fast)
+        rows.append(fast_row)
+        # The same preset without the spread stop, to see where it goes with more budget.
+        longer = dataclasses.replace(
+            fast, actor_critic=dataclasses.replace(fast.actor_critic, spread_target=1e-3)
+        )
+        rows.append(run_training(f"FAST preset, {max_iterations} iterations", longer)[0])
+        rows.append(run_training("paper's Algorithm 1 config (baseline)", paper)[0])
+        again, _ = run_training("FAST preset again (same seed)", fast)
+        reproducible = again["fingerprint"] == fast_row["fingerprint"]
+        features, feature_diff = bench_features(2048 if args.quick else 16384, 5)
+    peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+    print_table(
+        "RL-PSP training (2-core CPU; basin on 2048 uniform box states, 50 steps)",
+        rows,
+        [
+            ("case", "case", "s"),
+            ("iterations", "iters", "d"),
+            ("best_basin", "best basin", ".3f"),
+            ("t_basin_30", "s to 30%", ".1f"),
+            ("t_basin_40", "s to 40%", ".1f"),
+            ("t_basin_50", "s to 50%", ".1f"),
+            ("total_s", "total s", ".1f"),
+            ("compile_s", "compile s", ".1f"),
+            ("train_s", "train s", ".1f"),
+            ("eval_s", "eval s", ".1f"),
+            ("transitions_per_s", "steps/s", ".3g"),
+            ("live_transitions_per_s", "live steps/s", ".3g"),
+        ],
+    )
+    print("target: basin >= 50% within 10 s (compile included); '-' = not reached")
+    print(f"reproducible for a seed: {reproducible} (fingerprint {fast_row['fingerprint']})")
+    print(f"peak resident memory of this process: {peak_rss_mb:.0f} MB")
+    print_table(
+        "RBF network evaluation (means of 3 actions), per state",
+        features,
+        [
+            ("case", "case", "s"),
+            ("per_state_us", "us/state", ".3f"),
+            ("compile_s", "compile s", ".2f"),
+            ("vs_baseline", "x dense", ".1f"),
+        ],
+    )
+    print(f"(local vs dense max |difference| of the means: {feature_diff:.2e}, truncation)")
+    write_json(
+        args.json,
+        "bench_learning",
+        {
+            "quick": args.quick,
+            "training": rows,
+            "reproducible": reproducible,
+            "peak_rss_mb": peak_rss_mb,
+            "features": features,
+            "feature_truncation_max_diff": feature_diff,
+            "targets": {"basin": 0.5, "seconds": 10.0},
+        },
+    )
+    del fast_result
+
+
+if __name__ == "__main__":
+    main()

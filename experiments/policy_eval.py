@@ -1,0 +1,136 @@
+"""Evaluate a trained RL-PSP planner: survival basin against baselines, Fig. 6, value map.
+
+    jaxloco policy-eval                          # the default planner shipped in assets/
+    jaxloco policy-eval checkpoint=outputs/.../checkpoint num_states=8192
+
+Writes to hydra's run directory: ``basins.json`` and ``basins.md`` (survival basin of the
+fixed nominal action, the look-ahead search, the untrained and the trained policy),
+``fig6_pushed_steps.png`` (phase plots of sequential steps from pushed states, untrained
+vs trained) and ``value_map.png`` (learned value over the state box, basin boundary drawn).
+"""
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import hydra
+import jax
+import jax.numpy as jnp
+import numpy as np
+from hydra.core.config_store import ConfigStore
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import OmegaConf
+
+from jaxloco.learning import LearnedPlanner, init_train_state, load_planner, steps_survived
+from jaxloco.learning.checkpoint import DEFAULT_POLICY, assets_dir, load_checkpoint_config
+from jaxloco.learning.starts import uniform_states
+from jaxloco.planner import make_lookahead_policy, plan_steps, sample_com_trajectory
+from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.viz import plot_phase_portraits
+from jaxloco.viz.learning import plot_value_map
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class PolicyEvalConfig:
+    checkpoint: str = ""
+    """Checkpoint folder; empty: the default planner shipped in assets/."""
+    num_states: int = 4096
+    num_steps: int = 50
+    seed: int = 2024
+    fixed_action: list[float] = field(default_factory=lambda: [0.25, 0.2, 0.0])
+    pushed_states: list[Any] = field(
+        default_factory=lambda: [[0.05, 0.39, 0.33], [0.06, 0.45, -0.2], [0.04, 0.55, 0.0]]
+    )
+    """Post-impulse apex states for Fig. 6 (the first is the paper's)."""
+    fig6_steps: int = 10
+    value_map_resolution: int = 60
+    value_map_yd: list[float] = field(default_factory=lambda: [0.0])
+    dpi: int = 130
+
+
+ConfigStore.instance().store(name="policy_eval", node=PolicyEvalConfig)
+
+
+def run(cfg: PolicyEvalConfig, out_dir: Path) -> dict:
+    path = Path(cfg.checkpoint) if cfg.checkpoint else assets_dir() / DEFAULT_POLICY
+    trained = load_planner(path)
+    config, info = load_checkpoint_config(path)
+    untrained = LearnedPlanner(
+        init_train_state(config.actor_critic, config.grid).params, config.grid, config.planner
+    )
+    psp = trained.psp
+    states = uniform_states(jax.random.key(cfg.seed), cfg.num_states, config.starts)
+    fixed = jnp.asarray(cfg.fixed_action)
+    policies = {
+        f"fixed action {tuple(cfg.fixed_action)}": lambda s: fixed.astype(s.dtype),
+        "look-ahead search (1 step, 9x9x11 grid)": make_lookahead_policy(psp),
+        "RL-PSP untrained": untrained.policy,
+        "RL-PSP trained": trained.policy,
+    }
+    basins = {}
+    for name, policy in policies.items():
+        steps = jax.jit(lambda s, p=policy: steps_survived(p, s, psp, cfg.num_steps))(states)
+        basins[name] = float(jnp.mean(steps == cfg.num_steps))
+        log.info("survival basin %-40s %.3f", name, basins[name])
+
+    # Fig. 6: sequential steps from pushed states, untrained vs trained.
+    pushed = jnp.asarray(cfg.pushed_states, dtype=float)
+    trajs, labels = [], []
+    for name, planner in (("untrained", untrained), ("trained", trained)):
+        for s in pushed:
+            plan = plan_steps(s, planner.policy, psp, num_steps=cfg.fig6_steps)
+            trajs.append(sample_com_trajectory(plan, psp))
+            n = int(plan.num_safe_steps)
+            labels.append(f"{name}, from ({s[0]:.2f}, {s[1]:.2f}, {s[2]:.2f}): {n} safe steps")
+    fig = plot_phase_portraits(trajs, labels, title="Sequential steps from pushed states")
+    fig.savefig(out_dir / "fig6_pushed_steps.png", dpi=cfg.dpi)
+
+    # Value map with the basin boundary on (y, xd) slices of the box.
+    low, high = config.starts.box_low, config.starts.box_high
+    n = cfg.value_map_resolution
+    y_axis, xd_axis = np.linspace(low[0], high[0], n), np.linspace(low[1], high[1], n)
+    yy, xx = np.meshgrid(y_axis, xd_axis)
+    for yd in cfg.value_map_yd:
+        grid_states = jnp.asarray(np.stack([yy, xx, np.full_like(yy, yd)], -1).reshape(-1, 3))
+        value = np.asarray(trained.value(grid_states)).reshape(n, n)
+        steps = jax.jit(lambda s: steps_survived(trained.policy, s, psp, cfg.num_steps))(
+            grid_states
+        )
+        survived = np.asarray(steps == cfg.num_steps).reshape(n, n)
+        fig = plot_value_map(y_axis, xd_axis, value, survived, yd)
+        suffix = "" if len(cfg.value_map_yd) == 1 else f"_yd{yd:+.2f}"
+        fig.savefig(out_dir / f"value_map{suffix}.png", dpi=cfg.dpi)
+
+    summary = {
+        "checkpoint": str(path),
+        "training_info": info,
+        "survival_basin": basins,
+        "num_states": cfg.num_states,
+        "num_steps": cfg.num_steps,
+    }
+    write_json(out_dir / "basins.json", summary)
+    lines = ["| policy | survival basin |", "|---|---|"]
+    lines += [f"| {k} | {v:.3f} |" for k, v in basins.items()]
+    (out_dir / "basins.md").write_text(
+        f"Survival basin: fraction of {cfg.num_states} uniform apex states (Eq. 1 box) from "
+        f"which the policy walks {cfg.num_steps} steps.\n\n" + "\n".join(lines) + "\n"
+    )
+    return summary
+
+
+@hydra.main(version_base="1.3", config_path=None, config_name="policy_eval")
+def main(cfg) -> None:
+    quiet_jax_logs()
+    enable_compilation_cache()
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    summary = run(OmegaConf.to_object(cfg), out_dir)
+    print((out_dir / "basins.md").read_text())
+    print(f"evaluation written to {out_dir}")
+    del summary
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,118 @@
+"""Train the RL-PSP step policy (Algorithm 1, batched) and save it with its learning curve.
+
+    jaxloco train-planner                              # the FAST preset
+    jaxloco train-planner actor_critic.max_iterations=400 actor_critic.seed=3
+    jaxloco train-planner hydra.run.dir=runs/planner   # choose the output folder
+    jaxloco train-planner resume_from=runs/planner/checkpoint
+
+Writes to hydra's run directory: ``checkpoint/`` (weights, config, training state; load it
+with ``jaxloco.learning.load_planner(path)``), ``learning_curve.png`` (return, survival,
+spread and survival basin against iterations and wall time) and ``history.json``.
+"""
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import hydra
+from hydra.core.config_store import ConfigStore
+from hydra.core.hydra_config import HydraConfig
+from omegaconf import OmegaConf
+
+from jaxloco.config import config_schema, to_params
+from jaxloco.learning import (
+    FAST,
+    ActorCriticConfig,
+    EvalConfig,
+    RBFGrid,
+    StartStates,
+    TrainConfig,
+    save_checkpoint,
+    train,
+)
+from jaxloco.learning.checkpoint import load_checkpoint_config, load_train_state
+from jaxloco.learning.training import params_fingerprint
+from jaxloco.planner import PSPParams
+from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.viz.learning import plot_learning_curve
+
+log = logging.getLogger(__name__)
+ActorCriticSchema = config_schema(ActorCriticConfig, FAST)
+GridSchema = config_schema(RBFGrid)
+StartsSchema = config_schema(StartStates)
+PlannerSchema = config_schema(PSPParams)
+EvalSchema = config_schema(EvalConfig)
+
+
+@dataclass
+class TrainPlannerConfig:
+    actor_critic: ActorCriticSchema = field(default_factory=ActorCriticSchema)
+    grid: GridSchema = field(default_factory=GridSchema)
+    starts: StartsSchema = field(default_factory=StartsSchema)
+    planner: PlannerSchema = field(default_factory=PlannerSchema)
+    evaluation: EvalSchema = field(default_factory=EvalSchema)
+    resume_from: str = ""
+    """A checkpoint folder to continue training from (its config is used)."""
+    progress: bool = True
+    dpi: int = 130
+
+
+ConfigStore.instance().store(name="train_planner", node=TrainPlannerConfig)
+
+
+def build_config(cfg: TrainPlannerConfig) -> TrainConfig:
+    return TrainConfig(
+        actor_critic=to_params(ActorCriticConfig, cfg.actor_critic),
+        grid=to_params(RBFGrid, cfg.grid),
+        starts=to_params(StartStates, cfg.starts),
+        planner=to_params(PSPParams, cfg.planner),
+        evaluation=to_params(EvalConfig, cfg.evaluation),
+    )
+
+
+def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
+    state = None
+    if cfg.resume_from:
+        config, _ = load_checkpoint_config(cfg.resume_from)
+        state = load_train_state(cfg.resume_from, config)
+        log.info("resuming from %s at iteration %d", cfg.resume_from, int(state.iteration))
+    else:
+        config = build_config(cfg)
+    result = train(config, progress=cfg.progress, state=state)
+    info = {
+        "iteration": int(result.state.iteration),
+        "stop_reason": result.stop_reason,
+        "best_basin": result.best_basin,
+        "compile_seconds": result.compile_seconds,
+        "train_seconds": result.train_seconds,
+        "eval_seconds": result.eval_seconds,
+        "fingerprint": params_fingerprint(result.best_params),
+    }
+    save_checkpoint(out_dir / "checkpoint", result.best_params, config, info, result.state)
+    write_json(out_dir / "history.json", {"info": info, "history": result.history})
+    fig = plot_learning_curve(result.history, title="RL-PSP training")
+    fig.savefig(out_dir / "learning_curve.png", dpi=cfg.dpi)
+    log.info(
+        "stopped after %d iterations (%s); best survival basin %s; compile %.1f s, "
+        "training %.1f s, evaluation %.1f s",
+        info["iteration"],
+        result.stop_reason,
+        f"{result.best_basin:.3f}" if result.best_basin is not None else "not evaluated",
+        result.compile_seconds,
+        result.train_seconds,
+        result.eval_seconds,
+    )
+    return info
+
+
+@hydra.main(version_base="1.3", config_path=None, config_name="train_planner")
+def main(cfg) -> None:
+    quiet_jax_logs()
+    enable_compilation_cache()
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    run(OmegaConf.to_object(cfg), out_dir)
+    print(f"checkpoint and learning curve written to {out_dir}")
+
+
+if __name__ == "__main__":
+    main()

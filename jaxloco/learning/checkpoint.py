@@ -1,0 +1,173 @@
+"""Saving, loading and using trained RL-PSP planners.
+
+A checkpoint is a folder:
+
+- ``weights.npz``: the learned table over the grid's centres ``(18, 30, 56, 7)`` (value,
+  3 means, 3 log-spreads) and the bias ``(7,)``, float32, compressed;
+- ``config.json``: the :class:`~jaxloco.learning.training.TrainConfig` it was trained with,
+  and facts about the run (iteration, basin, timings);
+- ``train_state.msgpack`` (optional): the full training state, to resume training.
+
+:func:`load_planner` turns a checkpoint into a :class:`LearnedPlanner`; with no path it
+loads the default policy shipped in ``assets/policies/rl_psp``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from flax import serialization, struct
+
+from jaxloco.config import to_params
+from jaxloco.learning import policy as pol
+from jaxloco.learning import rbf
+from jaxloco.learning.actor_critic import (
+    ActorCriticConfig,
+    TrainState,
+    init_train_state,
+)
+from jaxloco.learning.starts import StartStates
+from jaxloco.learning.training import EvalConfig, TrainConfig
+from jaxloco.planner import PSPParams
+
+DEFAULT_POLICY = "policies/rl_psp"
+FORMAT_VERSION = 1
+
+
+def assets_dir() -> Path:
+    """The repository's ``assets/`` folder (or ``$JAXLOCO_ASSETS_DIR``)."""
+    env = os.environ.get("JAXLOCO_ASSETS_DIR")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "assets"
+
+
+def save_checkpoint(
+    path, params: pol.ActorCriticParams, config: TrainConfig, info=None, train_state=None
+) -> Path:
+    """Write a checkpoint folder (created if needed); returns its path."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    table = np.asarray(rbf.unpad(config.grid, params.table), np.float32)
+    np.savez_compressed(path / "weights.npz", table=table, bias=np.asarray(params.bias, np.float32))
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "config": dataclasses.asdict(config),
+        "info": info or {},
+    }
+    (path / "config.json").write_text(json.dumps(meta, indent=2, default=_json_default) + "\n")
+    if train_state is not None:
+        (path / "train_state.msgpack").write_bytes(serialization.to_bytes(train_state))
+    return path
+
+
+def load_checkpoint_config(path) -> tuple[TrainConfig, dict]:
+    """The :class:`TrainConfig` and run info stored in a checkpoint folder."""
+    meta = json.loads((Path(path) / "config.json").read_text())
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ValueError(
+            f"{path}: checkpoint format {meta.get('format_version')!r}, expected {FORMAT_VERSION}"
+        )
+    c = meta["config"]
+    config = TrainConfig(
+        actor_critic=to_params(ActorCriticConfig, c["actor_critic"]),
+        grid=to_params(rbf.RBFGrid, c["grid"]),
+        starts=to_params(StartStates, c["starts"]),
+        planner=to_params(PSPParams, c["planner"]),
+        evaluation=to_params(EvalConfig, c["evaluation"]),
+    )
+    return config, meta.get("info", {})
+
+
+def load_params(path, config: TrainConfig, dtype=jnp.float32) -> pol.ActorCriticParams:
+    """The weights of a checkpoint, as the padded table the network evaluates."""
+    path = Path(path)
+    with np.load(path / "weights.npz") as data:
+        table, bias = data["table"], data["bias"]
+    expected = (*config.grid.counts, pol.NUM_OUTPUTS)
+    if table.shape != expected:
+        raise ValueError(f"{path}: weight table has shape {table.shape}, expected {expected}")
+    r = config.grid.radius
+    padded = np.pad(table, ((r, r), (r, r), (r, r), (0, 0)))
+    return pol.ActorCriticParams(jnp.asarray(padded, dtype), jnp.asarray(bias, dtype))
+
+
+def load_train_state(path, config: TrainConfig) -> TrainState:
+    """The full training state saved with a checkpoint (to resume training)."""
+    path = Path(path) / "train_state.msgpack"
+    if not path.exists():
+        raise FileNotFoundError(f"{path} not found: this checkpoint cannot resume training")
+    template = init_train_state(config.actor_critic, config.grid)
+    return serialization.from_bytes(template, path.read_bytes())
+
+
+@struct.dataclass
+class LearnedPlanner:
+    """A trained RL-PSP planner: the deterministic step policy and the learned value.
+
+    A pytree (weights are leaves, the grid and planner parameters static), so it can be
+    passed into ``jit``-ed functions.
+    """
+
+    params: pol.ActorCriticParams
+    grid: rbf.RBFGrid = struct.field(pytree_node=False)
+    psp: PSPParams = struct.field(pytree_node=False)
+
+    def policy(self, state):
+        """The deterministic policy for one apex state ``(3,) -> (3,)`` (for plan_steps)."""
+        _, mean, _ = pol.network_outputs(self.params, rbf.local_features(self.grid, state))
+        low = jnp.asarray(self.psp.action_low, mean.dtype)
+        high = jnp.asarray(self.psp.action_high, mean.dtype)
+        return pol.mean_action(mean, low, high)
+
+    def mean_action(self, state):
+        """Mean actions for apex states ``(..., 3)`` (jittable, batched over leading axes)."""
+        return _batched(self.policy, state)
+
+    def value(self, state):
+        """Learned value ``v(s)`` for apex states ``(..., 3)``: the paper's walking risk."""
+
+        def one(s):
+            return pol.network_outputs(self.params, rbf.local_features(self.grid, s))[0]
+
+        return _batched(one, state)
+
+    def spread(self, state):
+        """Policy spreads ``(..., 3)`` (how sure the policy is)."""
+
+        def one(s):
+            _, _, log_spread = pol.network_outputs(self.params, rbf.local_features(self.grid, s))
+            return jnp.exp(log_spread)
+
+        return _batched(one, state)
+
+
+def _batched(fn, state):
+    state = jnp.asarray(state)
+    if state.shape[-1:] != (3,):
+        raise ValueError(f"apex states must have shape (..., 3); got {state.shape}")
+    flat = state.reshape(-1, 3)
+    out = jax.vmap(fn)(flat)
+    return out.reshape(*state.shape[:-1], *out.shape[1:])
+
+
+def load_planner(path=None) -> LearnedPlanner:
+    """Load a trained planner; ``path=None`` loads the default one shipped with jaxloco."""
+    path = Path(path) if path is not None else assets_dir() / DEFAULT_POLICY
+    if not (path / "weights.npz").exists():
+        raise FileNotFoundError(
+            f"no planner checkpoint at {path} (expected weights.npz and config.json); "
+            "train one with `jaxloco train-planner`"
+        )
+    config, _ = load_checkpoint_config(path)
+    return LearnedPlanner(load_params(path, config), config.grid, config.planner)
+
+
+def _json_default(obj):
+    if isinstance(obj, (np.generic, jax.Array, np.ndarray)):
+        return np.asarray(obj).tolist()
+    raise TypeError(f"cannot serialise {type(obj).__name__}")

@@ -1,0 +1,61 @@
+"""Figures for RL-PSP: learning curves, value maps with the survival basin (Fig. 5-6)."""
+
+from __future__ import annotations
+
+import numpy as np
+from matplotlib.figure import Figure
+
+
+def plot_learning_curve(history: list[dict], title: str = "RL-PSP training") -> Figure:
+    """Return, survival, spread and survival basin against iterations and wall time."""
+    it = np.array([h["iteration"] for h in history])
+    wall = np.array([h["wall_s"] for h in history])
+    fig = Figure(figsize=(12, 6.5), constrained_layout=True)
+    axes = fig.subplots(2, 4)
+    series = [
+        ("mean_return", "mean episode return"),
+        ("survival", "episodes surviving the step cap"),
+        ("spread", "mean policy spread"),
+        ("basin", "survival basin (mean policy)"),
+    ]
+    for col, (key, label) in enumerate(series):
+        for row, (x, xlabel) in enumerate(((it, "iteration"), (wall, "wall time (s)"))):
+            ax = axes[row, col]
+            if key == "spread":
+                values = np.array([h["spread"] for h in history])
+                for k, name in enumerate(("p_x", "xd_next", "yd_next")):
+                    ax.plot(x, values[:, k], label=name)
+                ax.legend(fontsize=7)
+            elif key == "basin":
+                pts = [(xv, h["basin"]) for xv, h in zip(x, history, strict=True) if "basin" in h]
+                if pts:
+                    ax.plot(*zip(*pts, strict=True), "o-")
+            else:
+                ax.plot(x, [h[key] for h in history])
+            ax.set(xlabel=xlabel, title=label if row == 0 else None)
+            ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    return fig
+
+
+def plot_value_map(
+    y_axis: np.ndarray,
+    xd_axis: np.ndarray,
+    value: np.ndarray,
+    survived: np.ndarray,
+    yd: float,
+    title: str = "learned value and survival basin",
+) -> Figure:
+    """The learned value over a (y, xd) slice of the apex state box at lateral velocity
+    ``yd``, with the boundary of the survival basin (states from which the mean policy
+    walks the full horizon) drawn on top. ``value`` and ``survived``: (len(xd), len(y))."""
+    fig = Figure(figsize=(6.5, 5), constrained_layout=True)
+    ax = fig.subplots()
+    mesh = ax.pcolormesh(y_axis, xd_axis, value, shading="auto", cmap="viridis")
+    fig.colorbar(mesh, ax=ax, label="v(s)")
+    if survived.any() and (~survived).any():
+        ax.contour(y_axis, xd_axis, survived.astype(float), levels=[0.5], colors="w")
+    ax.plot([], [], color="w", label="survival-basin boundary")
+    ax.legend(loc="upper right", fontsize=8, facecolor="0.5")
+    ax.set(xlabel="y_apex (m)", ylabel="xd_apex (m/s)", title=f"{title} (yd_apex = {yd:+.2f})")
+    return fig

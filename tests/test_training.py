@@ -1,0 +1,167 @@
+"""Training loop, checkpoints, the shipped planner, and the learning experiments (CI-sized)."""
+
+import dataclasses
+import json
+import os
+import subprocess
+import sys
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from jaxloco.learning import (
+    FAST,
+    EvalConfig,
+    LearnedPlanner,
+    RBFGrid,
+    TrainConfig,
+    load_checkpoint_config,
+    load_planner,
+    mean_policy,
+    save_checkpoint,
+    survival_basin,
+    train,
+)
+from jaxloco.learning.checkpoint import load_train_state
+from jaxloco.learning.training import params_fingerprint
+from jaxloco.planner import PSPParams
+
+P = PSPParams()
+SMALL = TrainConfig(
+    actor_critic=dataclasses.replace(
+        FAST, episodes_per_iteration=64, max_episode_steps=4, max_iterations=5
+    ),
+    evaluation=EvalConfig(every=2, num_states=128, num_steps=10),
+)
+
+
+@pytest.fixture(scope="module")
+def small_run():
+    return train(SMALL, progress=False)
+
+
+def test_train_runs_evaluates_and_keeps_the_best(small_run):
+    assert small_run.stop_reason == "iteration budget"
+    assert [h["iteration"] for h in small_run.history] == [1, 2, 3, 4, 5]
+    evaluated = [h for h in small_run.history if "basin" in h]
+    assert [h["iteration"] for h in evaluated] == [2, 4, 5]
+    assert small_run.best_basin == max(h["basin"] for h in evaluated)
+    assert all(np.isfinite(h["mean_return"]) for h in small_run.history)
+    assert small_run.compile_seconds > 0 and small_run.train_seconds > 0
+
+
+def test_spread_target_stops_training():
+    cfg = dataclasses.replace(
+        SMALL, actor_critic=dataclasses.replace(SMALL.actor_critic, spread_target=0.2)
+    )
+    result = train(cfg, progress=False)  # initial spreads are 0.1 < 0.2
+    assert result.stop_reason == "every mean spread < 0.2"
+    assert len(result.history) == 1
+
+
+def test_resume_reproduces_an_uninterrupted_run(small_run, tmp_path):
+    three = dataclasses.replace(
+        SMALL, actor_critic=dataclasses.replace(SMALL.actor_critic, max_iterations=3)
+    )
+    first = train(three, progress=False)
+    save_checkpoint(tmp_path / "ck", first.state.params, SMALL, {}, first.state)
+    config, _ = load_checkpoint_config(tmp_path / "ck")
+    assert config == SMALL
+    resumed = train(config, progress=False, state=load_train_state(tmp_path / "ck", config))
+    assert int(resumed.state.iteration) == 5
+    assert params_fingerprint(resumed.state.params) == params_fingerprint(small_run.state.params)
+
+
+def test_checkpoint_round_trip_and_planner_api(small_run, tmp_path):
+    path = save_checkpoint(tmp_path / "ck", small_run.best_params, SMALL, {"note": 1})
+    planner = load_planner(path)
+    states = jnp.asarray(
+        np.random.default_rng(0).uniform([-0.1, 0.1, -0.3], [0.15, 0.5, 0.3], (2, 5, 3))
+    )
+    want = jax.vmap(mean_policy(small_run.best_params, SMALL.grid, P))(states.reshape(-1, 3))
+    got = planner.mean_action(states)
+    assert got.shape == (2, 5, 3)
+    np.testing.assert_allclose(got.reshape(-1, 3), want, rtol=1e-6, atol=1e-7)
+    assert planner.value(states).shape == (2, 5)
+    assert planner.spread(states[0, 0]).shape == (3,)
+    # The planner is a pytree: it can be an argument of a jitted function.
+    jitted = jax.jit(lambda pl, s: pl.mean_action(s))(planner, states)
+    np.testing.assert_allclose(jitted, got, atol=1e-7)
+
+
+def test_loading_errors_are_clear(tmp_path):
+    with pytest.raises(FileNotFoundError, match="no planner checkpoint"):
+        load_planner(tmp_path / "nothing")
+    with pytest.raises(ValueError, match=r"apex states must have shape \(\.\.\., 3\)"):
+        load_planner().mean_action(jnp.zeros(4))
+
+
+def test_shipped_default_planner_beats_the_fixed_action():
+    planner = load_planner()
+    assert isinstance(planner, LearnedPlanner)
+    assert planner.grid == RBFGrid()
+    action = planner.mean_action(jnp.asarray(P.nominal_state))
+    assert np.all(np.asarray(action) >= np.array(P.action_low) - 1e-7)
+    assert np.all(np.asarray(action) <= np.array(P.action_high) + 1e-7)
+    trained, _, _ = survival_basin(planner.policy, P, jax.random.key(5), 1024)
+    fixed = lambda s: jnp.asarray([0.25, 0.2, 0.0], s.dtype)  # noqa: E731
+    baseline, _, _ = survival_basin(fixed, P, jax.random.key(5), 1024)
+    assert float(trained) > float(baseline) + 0.05
+
+
+def run_cli(args, tmp_path, timeout=600):
+    env = dict(os.environ, JAXLOCO_CACHE_DIR=str(tmp_path / "xla"))
+    return subprocess.run(
+        [sys.executable, "-m", "jaxloco.cli", *args, f"hydra.run.dir={tmp_path / 'run'}"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
+def test_train_planner_cli_ci_sized(tmp_path):
+    proc = run_cli(
+        [
+            "train-planner",
+            "actor_critic.max_iterations=3",
+            "actor_critic.episodes_per_iteration=32",
+            "actor_critic.max_episode_steps=3",
+            "evaluation.every=2",
+            "evaluation.num_states=64",
+            "evaluation.num_steps=5",
+            "progress=false",
+            "dpi=50",
+        ],
+        tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    assert (run / "learning_curve.png").stat().st_size > 0
+    history = json.loads((run / "history.json").read_text())
+    assert len(history["history"]) == 3 and history["info"]["iteration"] == 3
+    planner = load_planner(run / "checkpoint")
+    assert planner.mean_action(jnp.asarray(P.nominal_state)).shape == (3,)
+
+
+def test_policy_eval_cli_ci_sized(tmp_path):
+    proc = run_cli(
+        [
+            "policy-eval",
+            "num_states=128",
+            "num_steps=10",
+            "fig6_steps=3",
+            "value_map_resolution=8",
+            "dpi=50",
+        ],
+        tmp_path,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    basins = json.loads((run / "basins.json").read_text())["survival_basin"]
+    assert len(basins) == 4 and all(0.0 <= v <= 1.0 for v in basins.values())
+    for name in ("fig6_pushed_steps.png", "value_map.png", "basins.md"):
+        assert (run / name).stat().st_size > 0
