@@ -87,6 +87,9 @@ class ActorCriticConfig:
     """Centre and scale the actor's forward-view TD sums A^theta by their mean and standard
     deviation over the batch, and clip them to +-3 (the critic's are left as they are):
     bounded actor steps whatever the reward scale and however wrong the critic still is."""
+    advantage_std_floor: float = 0.0
+    """With normalize_advantage: divide by max(std, this floor), so that once the TD errors
+    shrink to noise they are not amplified back to unit size."""
     seed: int = 0
 
     def __post_init__(self):
@@ -219,7 +222,8 @@ def update_direction(params, ro: Rollout, cfg: ActorCriticConfig):
         n_active = jnp.maximum(jnp.sum(active), 1)
         adv_mean = jnp.sum(jnp.where(active, adv, 0.0)) / n_active
         adv_var = jnp.sum(jnp.where(active, (adv - adv_mean) ** 2, 0.0)) / n_active
-        actor_shift, actor_scale = adv_mean, 1.0 / (jnp.sqrt(adv_var) + 1e-6)
+        adv_std = jnp.maximum(jnp.sqrt(adv_var), cfg.advantage_std_floor)
+        actor_shift, actor_scale = adv_mean, 1.0 / (adv_std + 1e-6)
     clip_advantage = 3.0 if cfg.normalize_advantage else jnp.inf  # in standard deviations
     if cfg.natural_gradient:
         d_mean = ro.d_mean * jnp.exp(2.0 * ro.log_spread)
