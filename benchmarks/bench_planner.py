@@ -19,6 +19,7 @@ import numpy as np
 from _common import compile_seconds, parse_args, print_table, time_calls, write_json
 from _numpy_psp import plan_step_numpy
 
+from jaxloco.learning import load_planner
 from jaxloco.planner import PSPParams, make_lookahead_policy, plan_step, plan_steps
 from jaxloco.runtime import watchdog
 
@@ -120,6 +121,7 @@ def bench_latency(repeats):
     s0 = jnp.asarray(P.nominal_state, jnp.float32)
     actions = jnp.tile(jnp.asarray([0.3, 0.2, 0.0], jnp.float32), (HORIZON, 1))
     lookahead = make_lookahead_policy(P)
+    learned = load_planner()  # the RL-PSP policy shipped in assets/
 
     def compact(plan):
         return plan.footsteps, plan.t_switch, plan.t_apex, plan.alive
@@ -130,6 +132,9 @@ def bench_latency(repeats):
             lambda s: compact(plan_steps(s, actions, P))
         ),
         "15 steps, actions -> full FootstepPlan": jax.jit(lambda s: plan_steps(s, actions, P)),
+        "15 steps, learned RL-PSP policy -> footsteps+times": jax.jit(
+            lambda s: compact(plan_steps(s, learned.policy, P, num_steps=HORIZON))
+        ),
         "15 steps, lookahead policy -> footsteps+times": jax.jit(
             lambda s: compact(plan_steps(s, lookahead, P, num_steps=HORIZON))
         ),
