@@ -1,0 +1,80 @@
+"""Loading the robot models shipped in ``assets/`` and naming their parts.
+
+The Valkyrie-like humanoid (``assets/valkyrie/valkyrie.xml``, written by
+``assets/valkyrie/build_valkyrie.py`` from published figures): floating base + 28 joints in
+the paper's order, nq = 35, nv = 34, 135.9 kg; torque motors with the effort limits as
+control ranges; contacts only between each sole box and the floor; sites at each foot's
+centre of pressure and 4 contact corners. Keyframes ``zero`` (T-pose) and ``walk``.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import mujoco
+import numpy as np
+
+LEG_JOINTS = ("hipYaw", "hipRoll", "hipPitch", "knee", "anklePitch", "ankleRoll")
+ARM_JOINTS = ("shoulderPitch", "shoulderRoll", "shoulderYaw", "elbowPitch", "forearmYaw")
+TORSO_JOINTS = ("torsoYaw", "torsoPitch", "torsoRoll")
+NECK_JOINTS = ("lowerNeckPitch", "neckYaw", "upperNeckPitch")
+
+# The paper's joint order (after the 6 floating-base velocities).
+VALKYRIE_JOINTS = (
+    *(f"left_{j}" for j in LEG_JOINTS),
+    *(f"right_{j}" for j in LEG_JOINTS),
+    *TORSO_JOINTS,
+    *(f"left_{j}" for j in ARM_JOINTS),
+    *NECK_JOINTS,
+    *(f"right_{j}" for j in ARM_JOINTS),
+)
+FEET = ("left", "right")
+CONTACT_SITES = {side: tuple(f"{side}_foot_contact{k}" for k in range(4)) for side in FEET}
+COP_SITES = {side: f"{side}_foot_cop" for side in FEET}
+
+
+def assets_dir() -> Path:
+    """The repository's ``assets/`` folder (or ``$JAXLOCO_ASSETS_DIR``)."""
+    env = os.environ.get("JAXLOCO_ASSETS_DIR")
+    return Path(env) if env else Path(__file__).resolve().parents[2] / "assets"
+
+
+def load_model(name_or_path: str) -> mujoco.MjModel:
+    """An MjModel from a path, or a name in assets/: ``valkyrie`` or ``planar3dof``."""
+    named = {
+        "valkyrie": assets_dir() / "valkyrie" / "valkyrie.xml",
+        "planar3dof": assets_dir() / "planar3dof.xml",
+    }
+    path = named.get(name_or_path, Path(name_or_path))
+    if not path.exists():
+        raise FileNotFoundError(
+            f"no model {name_or_path!r}: expected one of {sorted(named)} or an MJCF path"
+        )
+    return mujoco.MjModel.from_xml_path(str(path))
+
+
+def load_valkyrie() -> mujoco.MjModel:
+    return load_model("valkyrie")
+
+
+def keyframe_qpos(model: mujoco.MjModel, name: str) -> np.ndarray:
+    """The ``qpos`` of a named keyframe."""
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, name)
+    if key < 0:
+        names = [model.key(i).name for i in range(model.nkey)]
+        raise KeyError(f"no keyframe {name!r}; the model has {names}")
+    return model.key_qpos[key].copy()
+
+
+def joint_dof(model: mujoco.MjModel, names) -> np.ndarray:
+    """Velocity indices of the named (hinge) joints."""
+    return np.array([model.jnt_dofadr[model.joint(n).id] for n in names])
+
+
+def site_id(model: mujoco.MjModel, name: str) -> int:
+    return model.site(name).id
+
+
+def body_id(model: mujoco.MjModel, name: str) -> int:
+    return model.body(name).id

@@ -1,0 +1,120 @@
+"""Facts of the Valkyrie-like model, pinned so nobody changes them by accident."""
+
+import importlib.util
+from pathlib import Path
+
+import mujoco
+import numpy as np
+import pytest
+
+from jaxloco.dynamics.model import (
+    CONTACT_SITES,
+    COP_SITES,
+    VALKYRIE_JOINTS,
+    assets_dir,
+    keyframe_qpos,
+    load_model,
+    load_valkyrie,
+)
+
+EFFORT = {
+    "hipYaw": 190, "hipRoll": 350, "hipPitch": 350, "knee": 350, "anklePitch": 205,
+    "ankleRoll": 205, "torsoYaw": 190, "torsoPitch": 150, "torsoRoll": 150,
+    "shoulderPitch": 190, "shoulderRoll": 190, "shoulderYaw": 65, "elbowPitch": 65,
+    "forearmYaw": 26, "lowerNeckPitch": 26, "neckYaw": 26, "upperNeckPitch": 26,
+}
+
+
+@pytest.fixture(scope="module")
+def model():
+    return load_valkyrie()
+
+
+def at_key(model, name):
+    data = mujoco.MjData(model)
+    data.qpos[:] = keyframe_qpos(model, name)
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def test_sizes_mass_and_joint_order(model):
+    assert (model.nq, model.nv, model.nu) == (35, 34, 28)
+    assert model.body_subtreemass[1] == pytest.approx(135.9, abs=1e-9)
+    names = [model.joint(i).name for i in range(1, model.njnt)]
+    assert tuple(names) == VALKYRIE_JOINTS
+    assert model.jnt_type[0] == mujoco.mjtJoint.mjJNT_FREE
+    assert model.opt.timestep == pytest.approx(0.001)
+
+
+def test_group_masses(model):
+    def subtree(body):
+        return model.body_subtreemass[model.body(body).id]
+
+    assert subtree("left_hipYaw_link") == pytest.approx(24.855)
+    assert subtree("right_hipYaw_link") == pytest.approx(24.855)
+    assert subtree("left_shoulderPitch_link") == pytest.approx(15.041)
+    assert subtree("lowerNeckPitch_link") == pytest.approx(7.818)
+    assert model.body_mass[model.body("pelvis").id] == pytest.approx(8.22)
+
+
+def test_limits_and_motors(model):
+    for i, name in enumerate(VALKYRIE_JOINTS):
+        base = name.split("_", 1)[-1]
+        assert model.actuator(i).name == name
+        np.testing.assert_allclose(model.actuator_ctrlrange[i], [-EFFORT[base], EFFORT[base]])
+        assert model.jnt_limited[model.joint(name).id]
+        assert model.dof_damping[model.jnt_dofadr[model.joint(name).id]] == 0.0
+    np.testing.assert_allclose(model.joint("left_knee").range, [-0.083, 2.057])
+    np.testing.assert_allclose(model.joint("left_hipYaw").range, [-0.414, 1.1])
+    np.testing.assert_allclose(model.joint("right_hipYaw").range, [-1.1, 0.414])  # mirrored
+    np.testing.assert_allclose(model.joint("right_shoulderRoll").range, [-1.266, 1.519])
+
+
+def test_zero_pose(model):
+    data = at_key(model, "zero")
+    assert data.qpos[2] == pytest.approx(1.171)
+    com_rel = data.subtree_com[1] - data.qpos[:3]
+    np.testing.assert_allclose(com_rel, [-0.008, -0.001, -0.024], atol=2e-3)
+    np.testing.assert_allclose(data.site(COP_SITES["left"]).xpos[1], 0.1377, atol=1e-3)
+    np.testing.assert_allclose(data.site(COP_SITES["right"]).xpos[1], -0.1377, atol=1e-3)
+
+
+def test_walking_keyframe(model):
+    data = at_key(model, "walk")
+    assert data.qpos[2] == pytest.approx(1.13, abs=0.005)
+    assert data.subtree_com[1][2] == pytest.approx(1.08, abs=0.015)
+    # The soles rest flat on the floor: every contact site at z = 0.
+    for side in ("left", "right"):
+        for site in (*CONTACT_SITES[side], COP_SITES[side]):
+            assert data.site(site).xpos[2] == pytest.approx(0.0, abs=1e-6)
+    # Arms lowered: hands below the shoulders.
+    assert data.site("left_hand").xpos[2] < 1.0
+
+
+def test_contacts_are_only_soles_on_the_floor(model):
+    assert model.npair == 2
+    assert all(model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0
+               for g in range(model.ngeom))
+    floor = model.geom("floor").id
+    pairs = {frozenset((int(model.pair_geom1[i]), int(model.pair_geom2[i])))
+             for i in range(model.npair)}
+    soles = (model.geom("left_sole").id, model.geom("right_sole").id)
+    assert pairs == {frozenset((s, floor)) for s in soles}
+    np.testing.assert_allclose(model.pair_friction[:, 0], 0.8)
+
+
+def test_committed_xml_is_what_the_generator_writes(tmp_path):
+    script = assets_dir() / "valkyrie" / "build_valkyrie.py"
+    spec = importlib.util.spec_from_file_location("build_valkyrie", script)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    out = module.main(tmp_path / "valkyrie.xml")
+    assert out.read_text() == (assets_dir() / "valkyrie" / "valkyrie.xml").read_text()
+
+
+def test_unknown_model_and_keyframe_errors(model):
+    with pytest.raises(FileNotFoundError, match="no model 'nope'"):
+        load_model("nope")
+    with pytest.raises(KeyError, match="no keyframe 'run'"):
+        keyframe_qpos(model, "run")
+    assert Path(assets_dir()).is_dir()
