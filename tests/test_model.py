@@ -18,10 +18,23 @@ from jaxloco.dynamics.model import (
 )
 
 EFFORT = {
-    "hipYaw": 190, "hipRoll": 350, "hipPitch": 350, "knee": 350, "anklePitch": 205,
-    "ankleRoll": 205, "torsoYaw": 190, "torsoPitch": 150, "torsoRoll": 150,
-    "shoulderPitch": 190, "shoulderRoll": 190, "shoulderYaw": 65, "elbowPitch": 65,
-    "forearmYaw": 26, "lowerNeckPitch": 26, "neckYaw": 26, "upperNeckPitch": 26,
+    "hipYaw": 190,
+    "hipRoll": 350,
+    "hipPitch": 350,
+    "knee": 350,
+    "anklePitch": 205,
+    "ankleRoll": 205,
+    "torsoYaw": 190,
+    "torsoPitch": 150,
+    "torsoRoll": 150,
+    "shoulderPitch": 190,
+    "shoulderRoll": 190,
+    "shoulderYaw": 65,
+    "elbowPitch": 65,
+    "forearmYaw": 26,
+    "lowerNeckPitch": 26,
+    "neckYaw": 26,
+    "upperNeckPitch": 26,
 }
 
 
@@ -93,11 +106,13 @@ def test_walking_keyframe(model):
 
 def test_contacts_are_only_soles_on_the_floor(model):
     assert model.npair == 2
-    assert all(model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0
-               for g in range(model.ngeom))
+    assert all(
+        model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0 for g in range(model.ngeom)
+    )
     floor = model.geom("floor").id
-    pairs = {frozenset((int(model.pair_geom1[i]), int(model.pair_geom2[i])))
-             for i in range(model.npair)}
+    pairs = {
+        frozenset((int(model.pair_geom1[i]), int(model.pair_geom2[i]))) for i in range(model.npair)
+    }
     soles = (model.geom("left_sole").id, model.geom("right_sole").id)
     assert pairs == {frozenset((s, floor)) for s in soles}
     np.testing.assert_allclose(model.pair_friction[:, 0], 0.8)

@@ -1,0 +1,53 @@
+"""Small SE(3) utilities for twists ``V = [w; v]`` (angular first, as in the paper, Eq. 22).
+
+Twists here are *spatial*: expressed in world coordinates at the world origin, so that the
+twist of a body is the sum of its joints' screw axes times their velocities (Eq. 26 in the
+spatial frame) and the time derivative of a screw axis that moves with the preceding links
+is ``ad_{V} S`` (the Lie bracket; paper Eq. 29 with ``Ad_{T'} = Ad_T ad_V``).
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+
+
+def hat(w):
+    """``[w]x``: the 3x3 skew matrix of a vector (Eq. 23)."""
+    w = jnp.asarray(w)
+    z = jnp.zeros_like(w[..., 0])
+    return jnp.stack(
+        [
+            jnp.stack([z, -w[..., 2], w[..., 1]], -1),
+            jnp.stack([w[..., 2], z, -w[..., 0]], -1),
+            jnp.stack([-w[..., 1], w[..., 0], z], -1),
+        ],
+        -2,
+    )
+
+
+def adjoint(rotation, position):
+    """``Ad_T`` (6x6) of ``T = (R, p)`` for twists ``[w; v]`` (Eq. 25)."""
+    zeros = jnp.zeros_like(rotation)
+    top = jnp.concatenate([rotation, zeros], -1)
+    bottom = jnp.concatenate([hat(position) @ rotation, rotation], -1)
+    return jnp.concatenate([top, bottom], -2)
+
+
+def ad(twist):
+    """``ad_V`` (6x6) of a twist ``[w; v]``: ``[[w]x, 0], [[v]x, [w]x]``."""
+    w, v = twist[..., :3], twist[..., 3:]
+    wx, vx = hat(w), hat(v)
+    zeros = jnp.zeros_like(wx)
+    return jnp.concatenate([jnp.concatenate([wx, zeros], -1), jnp.concatenate([vx, wx], -1)], -2)
+
+
+def ad_apply(twist, screw):
+    """``ad_V S`` without forming the matrix: ``[w x s_w; v x s_w + w x s_v]``."""
+    w, v = twist[..., :3], twist[..., 3:]
+    sw, sv = screw[..., :3], screw[..., 3:]
+    return jnp.concatenate([jnp.cross(w, sw), jnp.cross(v, sw) + jnp.cross(w, sv)], -1)
+
+
+def point_velocity(twist, point):
+    """Linear velocity of a point moving with a body of spatial twist ``[w; v]``."""
+    return twist[..., 3:] + jnp.cross(twist[..., :3], point)

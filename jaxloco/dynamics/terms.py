@@ -1,0 +1,37 @@
+"""Joint-space dynamics terms of Eq. 11, ``A qdd + b + g = U^T tau + J_r^T F_r``, from MJX.
+
+MJX computes the mass matrix (composite rigid bodies) and the total bias force
+``qfrc_bias = b + g`` (recursive Newton-Euler); nothing here re-implements them. The
+gravity part is ``g = -M J_com^T gravity`` (each body's weight mapped through its CoM
+Jacobian, summed), and ``b = qfrc_bias - g``: Coriolis and centrifugal forces alone.
+"""
+
+from __future__ import annotations
+
+import jax
+from flax import struct
+from mujoco import mjx
+
+from jaxloco.dynamics.jacobians import com_jacobian, smooth
+
+
+@struct.dataclass
+class JointSpaceTerms:
+    mass_matrix: jax.Array
+    """``A`` (nv, nv)."""
+    coriolis: jax.Array
+    """``b`` (nv,): Coriolis and centrifugal forces."""
+    gravity: jax.Array
+    """``g`` (nv,)."""
+
+
+def joint_space_terms(m: mjx.Model, d: mjx.Data, smoothed: bool = False) -> JointSpaceTerms:
+    """``A``, ``b`` and ``g`` at ``(d.qpos, d.qvel)``. ``smoothed``: :func:`smooth` was run."""
+    d = d if smoothed else smooth(m, d)
+    total_mass = m.body_mass.sum()
+    gravity = -total_mass * (com_jacobian(m, d).T @ m.opt.gravity)
+    return JointSpaceTerms(
+        mass_matrix=mjx.full_m(m, d),
+        coriolis=d.qfrc_bias - gravity,
+        gravity=gravity,
+    )

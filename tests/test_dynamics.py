@@ -1,0 +1,232 @@
+"""The dynamics layer against MuJoCo's C functions, finite differences and jax.jvp (float64)."""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from mujoco import mjx
+
+from jaxloco.dynamics import jacobians as J
+from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
+from jaxloco.dynamics.terms import joint_space_terms
+
+SITES = ("left_foot_cop", "right_foot_contact2", "left_hand", "right_hand", "torso", "pelvis")
+
+
+def random_state(model, seed, qvel_scale=1.0):
+    rng = np.random.default_rng(seed)
+    data = mujoco.MjData(model)
+    key = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, "walk")
+    data.qpos[:] = model.key_qpos[key] if key >= 0 else model.qpos0
+    for j in range(model.njnt):
+        adr = model.jnt_qposadr[j]
+        typ = model.jnt_type[j]
+        if typ in (mujoco.mjtJoint.mjJNT_FREE, mujoco.mjtJoint.mjJNT_BALL):
+            start = adr + (3 if typ == mujoco.mjtJoint.mjJNT_FREE else 0)
+            quat = rng.normal(size=4)
+            data.qpos[start : start + 4] = quat / np.linalg.norm(quat)
+        else:
+            data.qpos[adr] += rng.normal(0, 0.4)
+    data.qvel[:] = rng.normal(0, qvel_scale, model.nv)
+    mujoco.mj_forward(model, data)
+    return data
+
+
+def random_chain_xml(seed, floating):
+    """A random kinematic tree: hinges with random axes, slides and ball joints."""
+    rng = np.random.default_rng(seed)
+    kinds = ["hinge", "slide", "ball", "hinge", "hinge", "ball", "hinge"]
+    body = ""
+    for i, kind in reversed(list(enumerate(kinds))):
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        pos = rng.uniform(-0.3, 0.3, 3)
+        joint = (
+            f'<joint name="j{i}" type="ball"/>'
+            if kind == "ball"
+            else f'<joint name="j{i}" type="{kind}" axis="{axis[0]} {axis[1]} {axis[2]}"/>'
+        )
+        mass = rng.uniform(0.5, 3.0)
+        body = (
+            f'<body name="b{i}" pos="{pos[0]} {pos[1]} {pos[2]}">{joint}'
+            f'<inertial pos="{rng.uniform(-0.1, 0.1)} 0.05 {rng.uniform(-0.1, 0.1)}" '
+            f'mass="{mass}" diaginertia="0.02 0.03 0.04"/>'
+            f'<site name="s{i}" pos="0.1 -0.05 0.2"/>{body}</body>'
+        )
+        if i == 2:  # a branch
+            body = body.replace(
+                "</body>",
+                '<body name="branch" pos="0 0.2 0">'
+                '<joint name="jb" type="hinge" axis="0 1 0"/>'
+                '<inertial pos="0 0 0" mass="1" diaginertia="0.01 0.01 0.01"/>'
+                '<site name="sb" pos="0.2 0 0"/></body></body>',
+                1,
+            )
+    root = "<freejoint/>" if floating else ""
+    return (
+        f'<mujoco><option gravity="0 0 -9.81"/><worldbody><body name="root" pos="0 0 1">'
+        f'{root}<inertial pos="0 0 0" mass="2" diaginertia="0.1 0.1 0.1"/>{body}</body>'
+        f"</worldbody></mujoco>"
+    )
+
+
+def models():
+    yield "valkyrie", load_valkyrie(), SITES
+    for floating in (False, True):
+        model = mujoco.MjModel.from_xml_string(random_chain_xml(3, floating))
+        sites = tuple(model.site(i).name for i in range(model.nsite))
+        yield f"chain-floating={floating}", model, sites
+
+
+MODELS = list(models())
+
+
+@pytest.fixture(scope="module")
+def smooth_fn():
+    return jax.jit(J.smooth)
+
+
+@pytest.mark.parametrize("name,model,sites", MODELS, ids=[m[0] for m in MODELS])
+@pytest.mark.parametrize("seed", [0, 1])
+def test_jacobians_and_jdot_qdot_match_mujoco(name, model, sites, seed, smooth_fn):
+    data = random_state(model, seed)
+    mx, dx = mjx.put_model(model), mjx.put_data(model, data)
+    dx = smooth_fn(mx, dx)
+    motion = J.body_motion(mx, dx)
+    for site in sites:
+        sid = model.site(site).id
+        body, point = int(model.site_bodyid[sid]), data.site_xpos[sid]
+        jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jac(model, data, jacp, jacr, point, body)
+        ours = J.frame_jacobian(mx, dx, jnp.asarray(point), body)
+        np.testing.assert_allclose(ours, np.vstack([jacr, jacp]), atol=1e-12)
+        np.testing.assert_allclose(
+            J.point_jacobian(mx, dx, jnp.asarray(point), body), jacp, atol=1e-12
+        )
+        jdp, jdr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jacDot(model, data, jdp, jdr, point, body)
+        want = np.concatenate([jdr @ data.qvel, jdp @ data.qvel])
+        got = J.frame_jdot_qdot(mx, dx, jnp.asarray(point), body, motion)
+        np.testing.assert_allclose(got, want, atol=1e-10, err_msg=f"{name}:{site}")
+    jac_com = np.zeros((3, model.nv))
+    mujoco.mj_jacSubtreeCom(model, data, jac_com, 0)
+    np.testing.assert_allclose(J.com_jacobian(mx, dx), jac_com, atol=1e-12)
+
+
+def test_jdot_qdot_matches_finite_differences():
+    model = load_valkyrie()
+    data = random_state(model, 5)
+    mx, dx = (
+        mjx.put_model(model),
+        jax.jit(J.smooth)(mjx.put_model(model), mjx.put_data(model, data)),
+    )
+    eps = 1e-6
+
+    def site_jacobian(qpos, sid):
+        d = mujoco.MjData(model)
+        d.qpos[:] = qpos
+        mujoco.mj_kinematics(model, d)
+        mujoco.mj_comPos(model, d)
+        jacp, jacr = np.zeros((3, model.nv)), np.zeros((3, model.nv))
+        mujoco.mj_jac(model, d, jacp, jacr, d.site_xpos[sid], model.site_bodyid[sid])
+        return np.vstack([jacr, jacp])
+
+    q_plus, q_minus = data.qpos.copy(), data.qpos.copy()
+    mujoco.mj_integratePos(model, q_plus, data.qvel, eps)
+    mujoco.mj_integratePos(model, q_minus, data.qvel, -eps)
+    for site in SITES:
+        sid = model.site(site).id
+        fd = (site_jacobian(q_plus, sid) - site_jacobian(q_minus, sid)) / (2 * eps) @ data.qvel
+        got = J.frame_jdot_qdot(
+            mx, dx, jnp.asarray(data.site_xpos[sid]), int(model.site_bodyid[sid])
+        )
+        np.testing.assert_allclose(got, fd, atol=1e-8)
+    # The CoM too.
+    com = []
+    for q in (q_plus, q_minus):
+        d = mujoco.MjData(model)
+        d.qpos[:] = q
+        mujoco.mj_kinematics(model, d)
+        mujoco.mj_comPos(model, d)
+        jc = np.zeros((3, model.nv))
+        mujoco.mj_jacSubtreeCom(model, d, jc, 0)
+        com.append(jc)
+    fd_com = (com[0] - com[1]) / (2 * eps) @ data.qvel
+    np.testing.assert_allclose(J.com_jdot_qdot(mx, dx), fd_com, atol=1e-8)
+
+
+def quat_mul(a, b):
+    w1, x1, y1, z1 = a
+    w2, x2, y2, z2 = b
+    return jnp.stack(
+        [
+            w1 * w2 - x1 * x2 - y1 * y2 - z1 * z2,
+            w1 * x2 + x1 * w2 + y1 * z2 - z1 * y2,
+            w1 * y2 - x1 * z2 + y1 * w2 + z1 * x2,
+            w1 * z2 + x1 * y2 - y1 * x2 + z1 * w2,
+        ]
+    )
+
+
+def test_jdot_qdot_matches_jvp_of_the_jacobian():
+    """d/de J(q (+) e qd) qd at e = 0, with the free joint integrated on its manifold."""
+    model = load_valkyrie()
+    data = random_state(model, 7)
+    mx = mjx.put_model(model)
+    dx0 = mjx.put_data(model, data)
+    qpos0, qvel = jnp.asarray(data.qpos), jnp.asarray(data.qvel)
+    sid = model.site("left_hand").id
+    body = int(model.site_bodyid[sid])
+
+    def qpos_at(e):
+        pos = qpos0[:3] + e * qvel[:3]
+        w = e * qvel[3:6]
+        angle = jnp.sqrt(jnp.sum(w**2) + 1e-300)
+        dq = jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) * w / angle])
+        quat = quat_mul(qpos0[3:7], dq)  # local angular velocity: right multiplication
+        return jnp.concatenate([pos, quat, qpos0[7:] + e * qvel[6:]])
+
+    def jacobian(e):
+        d = mjx.kinematics(mx, dx0.replace(qpos=qpos_at(e)))
+        d = mjx.com_pos(mx, d)
+        return J.frame_jacobian(mx, d, d.site_xpos[sid], body) @ qvel
+
+    _, jdot_qdot = jax.jvp(jacobian, (0.0,), (1.0,))
+    dx = jax.jit(J.smooth)(mx, dx0)
+    np.testing.assert_allclose(
+        J.frame_jdot_qdot(mx, dx, jnp.asarray(data.site_xpos[sid]), body), jdot_qdot, atol=1e-9
+    )
+
+
+def test_joint_space_terms_match_mujoco():
+    model = load_valkyrie()
+    mx = mjx.put_model(model)
+    terms_fn = jax.jit(lambda d: joint_space_terms(mx, d))
+    for seed in range(2):
+        data = random_state(model, seed)
+        terms = terms_fn(mjx.put_data(model, data))
+        full = np.zeros((model.nv, model.nv))
+        mujoco.mj_fullM(model, data, full)
+        np.testing.assert_allclose(terms.mass_matrix, full, atol=1e-10)
+        np.testing.assert_allclose(terms.coriolis + terms.gravity, data.qfrc_bias, atol=1e-9)
+        still = mujoco.MjData(model)
+        still.qpos[:] = data.qpos
+        mujoco.mj_forward(model, still)
+        np.testing.assert_allclose(terms.gravity, still.qfrc_bias, atol=1e-9)
+        # b is quadratic in the velocities: doubling them quadruples it.
+        doubled = mujoco.MjData(model)
+        doubled.qpos[:], doubled.qvel[:] = data.qpos, 2 * data.qvel
+        terms2 = terms_fn(mjx.put_data(model, doubled))
+        np.testing.assert_allclose(terms2.coriolis, 4 * terms.coriolis, atol=1e-8)
+
+
+def test_keyframe_helpers_and_batched_evaluation():
+    model = load_valkyrie()
+    mx = mjx.put_model(model)
+    data = mujoco.MjData(model)
+    data.qpos[:] = keyframe_qpos(model, "walk")
+    batch = jax.tree.map(lambda x: jnp.stack([x, x]), mjx.put_data(model, data))
+    terms = jax.jit(jax.vmap(lambda d: joint_space_terms(mx, d)))(batch)
+    assert terms.mass_matrix.shape == (2, model.nv, model.nv)
+    np.testing.assert_allclose(terms.coriolis, 0.0, atol=1e-10)  # at rest
