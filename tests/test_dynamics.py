@@ -230,3 +230,69 @@ def test_keyframe_helpers_and_batched_evaluation():
     terms = jax.jit(jax.vmap(lambda d: joint_space_terms(mx, d)))(batch)
     assert terms.mass_matrix.shape == (2, model.nv, model.nv)
     np.testing.assert_allclose(terms.coriolis, 0.0, atol=1e-10)  # at rest
+
+
+# --- centroidal momentum and Eq. 31 ----------------------------------------------------
+
+from jaxloco.dynamics import centroidal as C  # noqa: E402
+
+
+def test_centroidal_momentum_matches_mujoco_subtree_momenta():
+    model = load_valkyrie()
+    mx = mjx.put_model(model)
+    for seed in range(2):
+        data = random_state(model, seed)
+        mujoco.mj_subtreeVel(model, data)
+        dx = jax.jit(J.smooth)(mx, mjx.put_data(model, data))
+        h = C.centroidal_momentum_matrix(mx, dx) @ jnp.asarray(data.qvel)
+        total = model.body_subtreemass[0]
+        np.testing.assert_allclose(h[3:], total * data.subtree_linvel[0], atol=1e-10)
+        np.testing.assert_allclose(h[:3], data.subtree_angmom[0], atol=1e-10)
+        np.testing.assert_allclose(C.centre_of_mass(mx, dx), data.subtree_com[0], atol=1e-12)
+        # The locked inertia maps a rigid rotation about the CoM to its angular momentum.
+        i_g = np.asarray(C.centroidal_inertia(mx, dx))
+        np.testing.assert_allclose(i_g, i_g.T, atol=1e-12)
+        assert np.all(np.linalg.eigvalsh(i_g) > 0)
+
+
+def momentum_rate_by_jvp(model, data, averaged):
+    """d/dt (J(q) qd) at qdd = 0 along the manifold, with J = J_cm or I_G^-1 J_cm."""
+    mx = mjx.put_model(model)
+    dx0 = mjx.put_data(model, data)
+    qpos0, qvel = jnp.asarray(data.qpos), jnp.asarray(data.qvel)
+
+    def qpos_at(e):
+        w = e * qvel[3:6]
+        angle = jnp.sqrt(jnp.sum(w**2) + 1e-300)
+        dq = jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) * w / angle])
+        return jnp.concatenate(
+            [qpos0[:3] + e * qvel[:3], quat_mul(qpos0[3:7], dq), qpos0[7:] + e * qvel[6:]]
+        )
+
+    def momentum(e):
+        d = mjx.com_pos(mx, mjx.kinematics(mx, dx0.replace(qpos=qpos_at(e))))
+        jcm = C.centroidal_momentum_matrix(mx, d)
+        if averaged:
+            jcm = jnp.linalg.solve(C.centroidal_inertia(mx, d), jcm)
+        return jcm @ qvel
+
+    return jax.jvp(momentum, (0.0,), (1.0,))[1]
+
+
+def test_eq31_holds_exactly_for_momentum_but_not_for_averaged_velocity():
+    model = load_valkyrie()
+    mx = mjx.put_model(model)
+    data = random_state(model, 11)
+    dx = jax.jit(J.smooth)(mx, mjx.put_data(model, data))
+    terms = joint_space_terms(mx, dx, smoothed=True)
+    jcm = C.centroidal_momentum_matrix(mx, dx)
+    eq31 = C.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis)
+    # Momentum: exact, angular and linear parts alike.
+    np.testing.assert_allclose(eq31, momentum_rate_by_jvp(model, data, False), atol=1e-8)
+    # An averaged velocity I_G^-1 h: Eq. 31 misses the d/dt(I_G^-1) h term.
+    i_g = C.centroidal_inertia(mx, dx)
+    averaged_eq31 = jnp.linalg.solve(i_g, eq31)
+    averaged_true = momentum_rate_by_jvp(model, data, True)
+    gap = np.abs(np.asarray(averaged_eq31 - averaged_true))
+    assert gap[:3].max() > 1e-2  # the angular part differs...
+    np.testing.assert_allclose(averaged_eq31[3:], averaged_true[3:], atol=1e-8)  # ...not CoM
