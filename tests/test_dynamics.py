@@ -296,3 +296,20 @@ def test_eq31_holds_exactly_for_momentum_but_not_for_averaged_velocity():
     gap = np.abs(np.asarray(averaged_eq31 - averaged_true))
     assert gap[:3].max() > 1e-2  # the angular part differs...
     np.testing.assert_allclose(averaged_eq31[3:], averaged_true[3:], atol=1e-8)  # ...not CoM
+
+
+def test_osc_planar_experiment_jdot_qdot_improves_tracking(tmp_path):
+    """Fig. 8, CI-sized: with Jdot qd the tip tracks the 2 Hz line far better."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "experiments" / "osc_planar.py"
+    spec = importlib.util.spec_from_file_location("osc_planar", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    cfg = module.OscPlanarConfig(duration=1.2, settle=0.6, dpi=50)
+    summary = module.run(cfg, tmp_path)
+    with_jdot = summary["results"]["with Jdot qd"]["rms_error_after_settle_m"]
+    without = summary["results"]["without Jdot qd"]["rms_error_after_settle_m"]
+    assert with_jdot < 0.005 and without > 3 * with_jdot
+    assert (tmp_path / "osc_paths.png").stat().st_size > 0

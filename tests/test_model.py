@@ -133,3 +133,10 @@ def test_unknown_model_and_keyframe_errors(model):
     with pytest.raises(KeyError, match="no keyframe 'run'"):
         keyframe_qpos(model, "run")
     assert Path(assets_dir()).is_dir()
+
+
+def test_planar_arm_starts_with_its_tip_on_the_target_line():
+    model = load_model("planar3dof")
+    assert (model.nq, model.nv, model.nu) == (3, 3, 3)
+    data = at_key(model, "start")
+    np.testing.assert_allclose(data.site("tip").xpos, [0.62, 0.0, 0.0], atol=1e-5)
