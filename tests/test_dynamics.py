@@ -313,3 +313,26 @@ def test_osc_planar_experiment_jdot_qdot_improves_tracking(tmp_path):
     without = summary["results"]["without Jdot qd"]["rms_error_after_settle_m"]
     assert with_jdot < 0.005 and without > 3 * with_jdot
     assert (tmp_path / "osc_paths.png").stat().st_size > 0
+
+
+def test_se3_identities():
+    from scipy.spatial.transform import Rotation
+
+    from jaxloco.dynamics import se3
+
+    rng = np.random.default_rng(4)
+    rot = Rotation.random(random_state=5).as_matrix()
+    pos, twist, screw = rng.normal(size=3), rng.normal(size=6), rng.normal(size=6)
+    w = rng.normal(size=3)
+    np.testing.assert_allclose(se3.hat(w) @ pos, np.cross(w, pos), atol=1e-14)
+    ad_t = np.asarray(se3.adjoint(jnp.asarray(rot), jnp.asarray(pos)))
+    # Ad_T ad_V Ad_T^-1 = ad_{Ad_T V} (the adjoint is a Lie-algebra homomorphism).
+    lhs = ad_t @ np.asarray(se3.ad(jnp.asarray(twist))) @ np.linalg.inv(ad_t)
+    np.testing.assert_allclose(lhs, se3.ad(jnp.asarray(ad_t @ twist)), atol=1e-12)
+    # ad_V S = -ad_S V, and the matrix-free form equals the matrix.
+    np.testing.assert_allclose(
+        se3.ad_apply(twist, screw), np.asarray(se3.ad(twist)) @ screw, atol=1e-14
+    )
+    np.testing.assert_allclose(
+        se3.ad_apply(twist, screw), -np.asarray(se3.ad_apply(screw, twist)), atol=1e-14
+    )
