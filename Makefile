@@ -32,7 +32,8 @@ test-all: $(STAMP)
 	$(BIN)/python -m pytest -q --runslow
 
 bench: $(STAMP)
-	$(BIN)/python benchmarks/bench_planner.py --json bench_results/bench_planner.json
+	for b in planner learning dynamics; do \
+	  $(BIN)/python benchmarks/bench_$$b.py --json bench_results/bench_$$b.json || exit 1; done
 
 lint: $(STAMP)
 	$(BIN)/ruff check jaxloco experiments tests benchmarks
