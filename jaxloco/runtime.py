@@ -19,6 +19,12 @@ import numpy as np
 DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "jaxloco"
 
 
+def assets_dir() -> Path:
+    """The repository's ``assets/`` folder (or ``$JAXLOCO_ASSETS_DIR``)."""
+    env = os.environ.get("JAXLOCO_ASSETS_DIR")
+    return Path(env) if env else Path(__file__).resolve().parents[1] / "assets"
+
+
 def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path:
     """Turn on JAX's persistent compilation cache so a second run skips XLA compiles.
 

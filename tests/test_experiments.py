@@ -2,12 +2,11 @@
 
 import dataclasses
 import json
-import os
-import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from cli_helpers import run_cli
 from omegaconf import OmegaConf
 
 from jaxloco import cli
@@ -43,18 +42,6 @@ def test_cli_lists_experiments(capsys):
 def test_cli_rejects_unknown_experiment():
     with pytest.raises(SystemExit, match="unknown experiment 'nope'"):
         cli.main(["nope"])
-
-
-def run_cli(args, tmp_path, timeout=300):
-    env = dict(os.environ, JAXLOCO_CACHE_DIR=str(tmp_path / "xla"))
-    return subprocess.run(
-        [*JAXLOCO, *args, f"hydra.run.dir={tmp_path / 'run'}"],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
 
 
 def test_phase_portrait_ci_sized(tmp_path):

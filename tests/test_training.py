@@ -2,14 +2,12 @@
 
 import dataclasses
 import json
-import os
-import subprocess
-import sys
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from jaxloco.learning import (
     FAST,
@@ -109,18 +107,6 @@ def test_shipped_default_planner_beats_the_fixed_action():
     fixed = lambda s: jnp.asarray([0.25, 0.2, 0.0], s.dtype)  # noqa: E731
     baseline, _, _ = survival_basin(fixed, P, jax.random.key(5), 1024)
     assert float(trained) > float(baseline) + 0.05
-
-
-def run_cli(args, tmp_path, timeout=600):
-    env = dict(os.environ, JAXLOCO_CACHE_DIR=str(tmp_path / "xla"))
-    return subprocess.run(
-        [sys.executable, "-m", "jaxloco.cli", *args, f"hydra.run.dir={tmp_path / 'run'}"],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-    )
 
 
 def test_train_planner_cli_ci_sized(tmp_path):

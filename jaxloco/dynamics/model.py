@@ -9,11 +9,12 @@ centre of pressure and 4 contact corners. Keyframes ``zero`` (T-pose) and ``walk
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import mujoco
 import numpy as np
+
+from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
 
 LEG_JOINTS = ("hipYaw", "hipRoll", "hipPitch", "knee", "anklePitch", "ankleRoll")
 ARM_JOINTS = ("shoulderPitch", "shoulderRoll", "shoulderYaw", "elbowPitch", "forearmYaw")
@@ -32,12 +33,6 @@ VALKYRIE_JOINTS = (
 FEET = ("left", "right")
 CONTACT_SITES = {side: tuple(f"{side}_foot_contact{k}" for k in range(4)) for side in FEET}
 COP_SITES = {side: f"{side}_foot_cop" for side in FEET}
-
-
-def assets_dir() -> Path:
-    """The repository's ``assets/`` folder (or ``$JAXLOCO_ASSETS_DIR``)."""
-    env = os.environ.get("JAXLOCO_ASSETS_DIR")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "assets"
 
 
 def load_model(name_or_path: str) -> mujoco.MjModel:

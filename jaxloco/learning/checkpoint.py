@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 from pathlib import Path
 
 import jax
@@ -35,15 +34,10 @@ from jaxloco.learning.actor_critic import (
 from jaxloco.learning.starts import StartStates
 from jaxloco.learning.training import EvalConfig, TrainConfig
 from jaxloco.planner import PSPParams
+from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
 
 DEFAULT_POLICY = "policies/rl_psp"
 FORMAT_VERSION = 1
-
-
-def assets_dir() -> Path:
-    """The repository's ``assets/`` folder (or ``$JAXLOCO_ASSETS_DIR``)."""
-    env = os.environ.get("JAXLOCO_ASSETS_DIR")
-    return Path(env) if env else Path(__file__).resolve().parents[2] / "assets"
 
 
 def save_checkpoint(
