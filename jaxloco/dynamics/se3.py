@@ -9,6 +9,7 @@ is ``ad_{V} S`` (the Lie bracket; paper Eq. 29 with ``Ad_{T'} = Ad_T ad_V``).
 from __future__ import annotations
 
 import jax.numpy as jnp
+from mujoco.mjx._src import math as mjx_math
 
 
 def hat(w):
@@ -51,3 +52,35 @@ def ad_apply(twist, screw):
 def point_velocity(twist, point):
     """Linear velocity of a point moving with a body of spatial twist ``[w; v]``."""
     return twist[..., 3:] + jnp.cross(twist[..., :3], point)
+
+
+def rotation_error(q_desired, q):
+    """World-frame rotation vector ``log(q_d q^-1)`` (3,), quaternions ``(w, x, y, z)``.
+
+    The orientation tasks' error: the angular velocity that would turn ``q`` into
+    ``q_d`` in unit time, about world axes (matching the angular rows of world-frame
+    Jacobians). The shorter way round is taken; the formula is smooth at zero error (its
+    gradient too), where ``2 atan2(|v|, w) / |v| -> 2 / w``.
+    """
+    e = mjx_math.quat_mul(q_desired, mjx_math.quat_inv(q))
+    e = jnp.where(e[0] < 0, -e, e)
+    w, v = e[0], e[1:]
+    s2 = v @ v
+    small = s2 < 1e-12
+    s = jnp.sqrt(jnp.where(small, 1.0, s2))
+    factor = jnp.where(small, 2.0 / w * (1.0 - s2 / (3.0 * w * w)), 2.0 * jnp.arctan2(s, w) / s)
+    return factor * v
+
+
+def quat_slerp(q0, q1, t):
+    """Spherical interpolation from ``q0`` (t = 0) to ``q1`` (t = 1), the shorter way."""
+    rel = mjx_math.quat_mul(q1, mjx_math.quat_inv(q0))
+    rel = jnp.where(rel[0] < 0, -rel, rel)
+    rotvec = rotation_error(rel, jnp.array([1.0, 0.0, 0.0, 0.0], rel.dtype)) * t
+    angle2 = rotvec @ rotvec
+    small = angle2 < 1e-12
+    angle = jnp.sqrt(jnp.where(small, 1.0, angle2))
+    half_sinc = jnp.where(small, 0.5 - angle2 / 48.0, jnp.sin(0.5 * angle) / angle)
+    cos_half = jnp.where(small, 1.0 - angle2 / 8.0, jnp.cos(0.5 * angle))
+    step = jnp.concatenate([cos_half[None], half_sinc * rotvec])
+    return mjx_math.quat_mul(step, q0)

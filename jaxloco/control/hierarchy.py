@@ -1,0 +1,67 @@
+"""The prioritised, dynamically consistent task hierarchy of WBLC (paper Eq. 6-10, 13).
+
+For tasks ``k = 1..n`` with Jacobians ``J_k`` and commands ``e_k = xdd_k^d - Jdot_k qd``::
+
+    qdd_1 = Jbar_1 e_1,                                        Jbar = A^-1 J' (J A^-1 J')^+
+    qdd_k = Jbar_{k|prec(k)} (e_k - J_k sum_{i<k} qdd_i),      J_{k|prec(k)} = J_k N_prec(k)
+    N_prec(k) = N_1 N_{2|1} ... N_{k-1|k-2},                   N_{s|s-1} = I - Jbar_{s|prec} J_{s|prec}
+
+and ``qdd_[task] = sum_k qdd_k`` (Eq. 9). The inverses are dynamically consistent
+(Eq. 7): lower-priority accelerations are filtered through ``N_prec``, which leaves every
+higher-priority task acceleration unchanged, in the metric of the mass matrix. The
+``(J A^-1 J')^+`` are thresholded pseudo-inverses (:mod:`jaxloco.control.pinv`), so a
+task that is redundant with the ones above it, or masked to zero rows, is handled without
+special cases. The levels are a Python sequence of static shapes: the loop unrolls at
+trace time and the result batches with ``vmap``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxloco.control.pinv import pinv_psd
+
+
+@struct.dataclass
+class HierarchyResult:
+    qdd: jax.Array
+    """``qdd_[task]`` (nv,), Eq. 9."""
+    null_space: jax.Array
+    """``N_{n|prec(n)}`` (nv, nv), Eq. 13: the motions that leave every task unchanged."""
+    task_residuals: tuple
+    """Per level, ``e_k - J_k qdd_[task]``: what the level could not achieve (0 if met)."""
+
+
+def dynamically_consistent_inverse(jacobian, mass_inv, rtol: float = 1e-8):
+    """``Jbar = A^-1 J' (J A^-1 J')^+`` (Eq. 7)."""
+    a_inv_jt = mass_inv @ jacobian.T
+    return a_inv_jt @ pinv_psd(jacobian @ a_inv_jt, rtol)
+
+
+def prioritized_accelerations(
+    jacobians: Sequence[jax.Array],
+    commands: Sequence[jax.Array],
+    mass_inv: jax.Array,
+    rtol: float = 1e-8,
+) -> HierarchyResult:
+    """Joint accelerations for tasks in priority order (first = highest), Eq. 9-10.
+
+    ``jacobians[k]`` is ``(m_k, nv)``; ``commands[k]`` is ``e_k = xdd_k^d - Jdot_k qd``.
+    """
+    if len(jacobians) != len(commands) or not jacobians:
+        raise ValueError("prioritized_accelerations: need one command per Jacobian, >= 1 task")
+    nv = mass_inv.shape[0]
+    eye = jnp.eye(nv, dtype=mass_inv.dtype)
+    null = eye
+    qdd = jnp.zeros(nv, mass_inv.dtype)
+    for jac, cmd in zip(jacobians, commands, strict=True):
+        projected = jac @ null  # J_{k|prec(k)}
+        jbar = dynamically_consistent_inverse(projected, mass_inv, rtol)
+        qdd = qdd + jbar @ (cmd - jac @ qdd)
+        null = null @ (eye - jbar @ projected)
+    residuals = tuple(cmd - jac @ qdd for jac, cmd in zip(jacobians, commands, strict=True))
+    return HierarchyResult(qdd, null, residuals)

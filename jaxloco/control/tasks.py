@@ -1,0 +1,245 @@
+"""WBLC tasks: small pure objects that give a Jacobian, ``Jdot qd`` and a desired
+acceleration from PD gains plus a feed-forward reference (paper Eq. 5-6).
+
+Every task reads one :class:`RobotSnapshot` (the dynamics of one state, computed once per
+tick and shared). Kinds:
+
+- ``com``: whole-body centre of mass, 3 rows.
+- ``cam``: centroidal angular momentum ``k`` (momentum units, rows of ``J_cm``), 3 rows;
+  its "position" reference is the desired momentum (usually 0): ``kdot^d = kp (k^d - k) +
+  acc``. Inside WBLC its command is replaced by what the contact forces achieve (Eq. 15).
+- ``orientation``: a site's frame, quaternion error :func:`se3.rotation_error`, 3 rows.
+- ``position``: a site's origin, 3 rows.
+- ``joints``: a set of joints (partial or full posture), one row each.
+- ``contact``: a foot held still (6 rows, ``[angular; linear]``), command ``-Jdot qd``.
+
+A reference's ``weight`` (0..1) scales the task's rows: 0 switches it off (a swing-foot task
+in double support) without changing any shape. Gains are a separate pytree (see
+:func:`default_gains`) so they can be differentiated and tuned.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+from mujoco import mjx
+
+from jaxloco.dynamics import centroidal, se3
+from jaxloco.dynamics import jacobians as jac
+from jaxloco.dynamics.terms import joint_space_terms
+
+KINDS = ("com", "cam", "orientation", "position", "joints", "contact")
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskSpec:
+    """One task: its ``kind``, what it acts on (``frame``: a site; ``joints``: joint
+    names) and default PD gains (a number, or one per row)."""
+
+    name: str
+    kind: str
+    frame: str = ""
+    joints: tuple[str, ...] = ()
+    kp: tuple[float, ...] = (0.0,)
+    kd: tuple[float, ...] = (0.0,)
+
+    def __post_init__(self):
+        if self.kind not in KINDS:
+            raise ValueError(f"TaskSpec {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}")
+        if self.kind in ("orientation", "position", "contact") and not self.frame:
+            raise ValueError(f"TaskSpec {self.name!r}: kind {self.kind!r} needs a frame (site name)")
+        if self.kind == "joints" and not self.joints:
+            raise ValueError(f"TaskSpec {self.name!r}: kind 'joints' needs joint names")
+        for field in ("kp", "kd"):
+            gains = getattr(self, field)
+            if len(gains) not in (1, self.dim) or any(g < 0 for g in gains):
+                raise ValueError(
+                    f"TaskSpec {self.name!r}: {field} must be 1 or {self.dim} numbers >= 0, "
+                    f"got {gains}"
+                )
+
+    @property
+    def dim(self) -> int:
+        return {"joints": len(self.joints), "contact": 6}.get(self.kind, 3)
+
+    @property
+    def reference_dim(self) -> int:
+        """Size of the position reference (a quaternion for orientations)."""
+        return 4 if self.kind == "orientation" else self.dim
+
+
+@struct.dataclass
+class TaskReference:
+    """Desired position (quaternion ``w, x, y, z`` for orientations), velocity and
+    feed-forward acceleration, and a weight in [0, 1] scaling the task's rows."""
+
+    pos: jax.Array
+    vel: jax.Array
+    acc: jax.Array
+    weight: jax.Array
+
+
+@struct.dataclass
+class TaskTerms:
+    jacobian: jax.Array
+    jdot_qdot: jax.Array
+    desired: jax.Array
+    """Desired task acceleration ``xdd^d`` (PD + feed-forward)."""
+    error: jax.Array
+    """Position error (rotation vector for orientations); what plots show."""
+
+
+@struct.dataclass
+class RobotSnapshot:
+    """Everything the tasks and WBLC need about one state, computed once per tick."""
+
+    data: mjx.Data
+    mass_matrix: jax.Array
+    coriolis: jax.Array
+    gravity: jax.Array
+    motion: tuple
+    centroidal_matrix: jax.Array
+    centroidal_bias: jax.Array
+    com: jax.Array
+    com_vel: jax.Array
+    total_mass: jax.Array
+
+
+def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
+    """The dynamics of the state ``(qpos, qvel)`` on the MJX model ``mx``."""
+    d = mjx.make_data(mx).replace(qpos=qpos, qvel=qvel)
+    d = jac.smooth(mx, d)
+    terms = joint_space_terms(mx, d, smoothed=True)
+    jcm = centroidal.centroidal_momentum_matrix(mx, d)
+    total = jnp.sum(mx.body_mass)
+    return RobotSnapshot(
+        data=d,
+        mass_matrix=terms.mass_matrix,
+        coriolis=terms.coriolis,
+        gravity=terms.gravity,
+        motion=jac.body_motion(mx, d),
+        centroidal_matrix=jcm,
+        centroidal_bias=centroidal.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis),
+        com=centroidal.centre_of_mass(mx, d),
+        com_vel=jcm[3:] @ qvel / total,
+        total_mass=total,
+    )
+
+
+@dataclasses.dataclass(frozen=True)
+class _Index:
+    """Static model indices of one task."""
+
+    site: int = -1
+    body: int = -1
+    qpos: tuple[int, ...] = ()
+    dof: tuple[int, ...] = ()
+
+
+def task_index(model: mujoco.MjModel, spec: TaskSpec) -> _Index:
+    if spec.frame:
+        site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, spec.frame)
+        if site < 0:
+            raise ValueError(f"TaskSpec {spec.name!r}: no site {spec.frame!r} in the model")
+        if spec.kind == "orientation" and not np.allclose(model.site_quat[site], [1, 0, 0, 0]):
+            raise ValueError(f"TaskSpec {spec.name!r}: site {spec.frame!r} must be body-aligned")
+        return _Index(site=site, body=int(model.site_bodyid[site]))
+    if spec.joints:
+        ids = []
+        for name in spec.joints:
+            j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
+            if j < 0:
+                raise ValueError(f"TaskSpec {spec.name!r}: no joint {name!r} in the model")
+            if int(model.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+                raise ValueError(f"TaskSpec {spec.name!r}: joint {name!r} is not 1-dof")
+            ids.append(j)
+        return _Index(
+            qpos=tuple(int(model.jnt_qposadr[j]) for j in ids),
+            dof=tuple(int(model.jnt_dofadr[j]) for j in ids),
+        )
+    return _Index()
+
+
+def current_position(mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSnapshot):
+    """The task's current position (quaternion for orientations, momentum for CAM)."""
+    d = snap.data
+    if spec.kind == "com":
+        return snap.com
+    if spec.kind == "cam":
+        return snap.centroidal_matrix[:3] @ d.qvel
+    if spec.kind == "orientation":
+        return d.xquat[index.body]
+    if spec.kind in ("position", "contact"):
+        pos = d.site_xpos[index.site]
+        return pos if spec.kind == "position" else jnp.concatenate([d.xquat[index.body], pos])
+    return d.qpos[jnp.asarray(index.qpos)]
+
+
+def task_terms(
+    mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSnapshot, ref: TaskReference, gains
+) -> TaskTerms:
+    """Jacobian, ``Jdot qd`` and desired acceleration of one task (rows scaled by weight)."""
+    d = snap.data
+    kp, kd = gains["kp"], gains["kd"]
+    dtype = d.qvel.dtype
+    if spec.kind == "com":
+        j = jac.com_jacobian(mx, d)
+        jdqd = jac.com_jdot_qdot(mx, d, snap.motion)
+        err = ref.pos - snap.com
+        desired = kp * err + kd * (ref.vel - j @ d.qvel) + ref.acc
+    elif spec.kind == "cam":
+        j, jdqd = snap.centroidal_matrix[:3], snap.centroidal_bias[:3]
+        err = ref.pos - j @ d.qvel
+        desired = kp * err + ref.acc
+    elif spec.kind in ("orientation", "position", "contact"):
+        point = d.site_xpos[index.site]
+        j6 = jac.frame_jacobian(mx, d, point, index.body)
+        jdqd6 = jac.frame_jdot_qdot(mx, d, point, index.body, snap.motion)
+        if spec.kind == "orientation":
+            j, jdqd = j6[:3], jdqd6[:3]
+            err = se3.rotation_error(ref.pos, d.xquat[index.body])
+            desired = kp * err + kd * (ref.vel - j @ d.qvel) + ref.acc
+        elif spec.kind == "position":
+            j, jdqd = j6[3:], jdqd6[3:]
+            err = ref.pos - point
+            desired = kp * err + kd * (ref.vel - j @ d.qvel) + ref.acc
+        else:  # contact: hold still, damp any residual slip
+            j, jdqd = j6, jdqd6
+            err = jnp.zeros(6, dtype)
+            desired = -kd * (j @ d.qvel)
+    else:
+        dofs = jnp.asarray(index.dof)
+        j = jnp.zeros((len(index.dof), mx.nv), dtype).at[jnp.arange(len(index.dof)), dofs].set(1)
+        jdqd = jnp.zeros(len(index.dof), dtype)
+        err = ref.pos - d.qpos[jnp.asarray(index.qpos)]
+        desired = kp * err + kd * (ref.vel - d.qvel[dofs]) + ref.acc
+    w = ref.weight
+    return TaskTerms(w * j, w * jdqd, w * desired, err)
+
+
+def default_gains(specs) -> dict:
+    """``{task name: {"kp": (dim,), "kd": (dim,)}}`` from the specs' defaults."""
+    return {
+        s.name: {
+            "kp": jnp.broadcast_to(jnp.asarray(s.kp, float), (s.dim,)),
+            "kd": jnp.broadcast_to(jnp.asarray(s.kd, float), (s.dim,)),
+        }
+        for s in specs
+    }
+
+
+def hold_reference(mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSnapshot):
+    """A reference that holds the task where it is now, at rest (weight 1)."""
+    dtype = snap.data.qvel.dtype
+    pos = current_position(mx, spec, index, snap)
+    if spec.kind == "cam":
+        pos = jnp.zeros(3, dtype)
+    if spec.kind == "contact":
+        pos = jnp.zeros(spec.reference_dim, dtype)
+    zeros = jnp.zeros(spec.dim, dtype)
+    return TaskReference(pos, zeros, zeros, jnp.ones((), dtype))

@@ -1,0 +1,297 @@
+"""The whole-body locomotion controller, WBLC (paper Section III, Fig. 7).
+
+One tick, for a state ``(qpos, qvel)``, task references, a contact set and the previous
+tick's QP solution:
+
+1. every task's Jacobian, ``Jdot qd`` and desired acceleration (:mod:`.tasks`);
+2. the reaction-force QP of Eq. 14 (:mod:`.force_qp`): the CoM task's acceleration as the
+   hard linear part ``m (xdd_com^d + g)``, the CAM task's rate as the soft angular part;
+   the angular rate the forces achieve becomes the CAM task's command (Eq. 15);
+3. the hierarchy of Eq. 9-10 (:mod:`.hierarchy`) over the levels of ``config.hierarchy``;
+4. torques by Eq. 16-19: ``[U', -A N] [tau; qdd_res] = A qdd_task + b + g - J_r' F_r``,
+   solved by a thresholded pseudo-inverse.
+
+Sign convention: ``F_r`` is the force of the ground *on the robot* (MuJoCo's), so Eq. 11
+reads ``A qdd + b + g - J_r' F_r = U' tau``.
+
+**Contact constraint.** Feet in contact are held still by a ``contact`` task: the paper's
+hierarchy lists no such task, but without one ``qdd_task`` would accelerate feet that the
+ground holds, and Eq. 11 would not describe the motion that follows. The presets put it
+first; its rows are switched off for a foot out of contact. This is our choice, made
+explicit in the configs.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+from flax import struct
+from mujoco import mjx
+
+from jaxloco.control import admm, force_qp
+from jaxloco.control.hierarchy import prioritized_accelerations
+from jaxloco.control.pinv import pinv_psd
+from jaxloco.control.tasks import (
+    RobotSnapshot,
+    TaskReference,
+    TaskSpec,
+    default_gains,
+    hold_reference,
+    snapshot,
+    task_index,
+    task_terms,
+)
+from jaxloco.dynamics import jacobians as jac
+
+
+@dataclasses.dataclass(frozen=True)
+class FootSpec:
+    """A foot: the site of its contact frame and the sites of its contact points."""
+
+    frame: str
+    points: tuple[str, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class WBLCConfig:
+    """Tasks, their priority order and the solver settings.
+
+    ``hierarchy``: levels, highest priority first; a level ``"a+b"`` stacks tasks ``a`` and
+    ``b`` at one priority. Tasks not named in it are not used. ``cam_task``/``com_task``
+    name the tasks whose commands feed the force QP.
+    """
+
+    tasks: tuple[TaskSpec, ...]
+    hierarchy: tuple[str, ...]
+    feet: tuple[FootSpec, ...]
+    com_task: str = "com"
+    cam_task: str = "cam"
+    force_qp: force_qp.ForceQPParams = force_qp.ForceQPParams()
+    pinv_rtol: float = 1e-8
+    """Eigenvalues of ``J A^-1 J'`` below this fraction of the largest count as zero."""
+    torque_pinv_rtol: float = 1e-8
+    """The same for Eq. 19's ``[U', -A N]``."""
+
+    def __post_init__(self):
+        names = [t.name for t in self.tasks]
+        if len(set(names)) != len(names):
+            raise ValueError(f"WBLCConfig.tasks: task names must be unique, got {names}")
+        if not self.hierarchy:
+            raise ValueError("WBLCConfig.hierarchy: needs at least one level")
+        for level in self.hierarchy:
+            for name in level.split("+"):
+                if name not in names:
+                    raise ValueError(
+                        f"WBLCConfig.hierarchy: unknown task {name!r} in level {level!r}; "
+                        f"tasks are {names}"
+                    )
+        for field in ("com_task", "cam_task"):
+            if getattr(self, field) not in names:
+                raise ValueError(f"WBLCConfig.{field}: {getattr(self, field)!r} is not a task")
+        if not self.feet:
+            raise ValueError("WBLCConfig.feet: needs at least one foot")
+        for field in ("pinv_rtol", "torque_pinv_rtol"):
+            if not 0 < getattr(self, field) < 1:
+                raise ValueError(f"WBLCConfig.{field}: must be in (0, 1)")
+
+    def task(self, name: str) -> TaskSpec:
+        return next(t for t in self.tasks if t.name == name)
+
+    def with_hierarchy(self, *levels: str) -> WBLCConfig:
+        return dataclasses.replace(self, hierarchy=tuple(levels))
+
+
+@struct.dataclass
+class WBLCDiagnostics:
+    qdd_desired: jax.Array
+    """``qdd^d = qdd_task + N qdd_res`` (Eq. 12)."""
+    contact_forces: jax.Array
+    """(points, 3) reaction forces on the robot (N), world frame."""
+    cam_rate_achieved: jax.Array
+    """``W_ang F_r`` (Eq. 15)."""
+    qp_relaxed: jax.Array
+    """True when the friction cone had to be relaxed to ``mu_relaxed``."""
+    qp_violation: jax.Array
+    qp_dual_residual: jax.Array
+    base_residual: jax.Array
+    """Floating-base rows of Eq. 17 left unmet (6,): 0 when the torques realise qdd^d."""
+    torque_over_limit: jax.Array
+    """(nu,) True where the torque exceeds the actuator's limit (not clipped here)."""
+    task_errors: dict
+    """Per task, its position error (rotation vector for orientations)."""
+    level_residuals: tuple
+    """Per hierarchy level, what it could not achieve (``e_k - J_k qdd_task``)."""
+
+
+@struct.dataclass
+class WBLCOutput:
+    torques: jax.Array
+    """(nu,) actuator torques, actuator order."""
+    diagnostics: WBLCDiagnostics
+    qp_state: tuple
+    """Pass back as ``previous`` next tick (warm start)."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class WBLC:
+    """WBLC bound to a model: ``wblc(qpos, qvel, refs, contact, gains, previous)``.
+
+    Build with :func:`make_wblc`. Pure and jittable; ``jax.vmap`` over a batch of robots.
+    """
+
+    model: mujoco.MjModel
+    mx: mjx.Model
+    config: WBLCConfig
+    indices: dict
+    point_sites: tuple[int, ...]
+    foot_of_point: tuple[int, ...]
+    selection: jax.Array
+    torque_limits: jax.Array
+    unactuated_dofs: tuple[int, ...]
+
+    def default_gains(self) -> dict:
+        return default_gains(self.config.tasks)
+
+    def snapshot(self, qpos, qvel) -> RobotSnapshot:
+        return snapshot(self.mx, qpos, qvel)
+
+    def hold_references(self, qpos, qvel=None) -> dict:
+        """References that hold every task where it is at ``qpos`` (zero velocity)."""
+        qvel = jnp.zeros(self.mx.nv) if qvel is None else qvel
+        snap = self.snapshot(qpos, qvel)
+        return {
+            t.name: hold_reference(self.mx, t, self.indices[t.name], snap)
+            for t in self.config.tasks
+        }
+
+    def initial_qp_state(self, dtype=None) -> tuple:
+        n = 3 * len(self.point_sites)
+        m = 3 + 4 * len(self.point_sites) + n
+        zero = admm.zero_state(n, m, dtype)
+        return (zero, zero)
+
+    def __call__(self, qpos, qvel, refs, contact, gains=None, previous=None) -> WBLCOutput:
+        return wblc_tick(self, qpos, qvel, refs, contact, gains, previous)
+
+
+def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = None) -> WBLC:
+    mx = mjx.put_model(model) if mx is None else mx
+    indices = {t.name: task_index(model, t) for t in config.tasks}
+    point_sites, foot_of_point = [], []
+    for k, foot in enumerate(config.feet):
+        for name in foot.points:
+            site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, name)
+            if site < 0:
+                raise ValueError(f"WBLCConfig.feet: no site {name!r} in the model")
+            point_sites.append(site)
+            foot_of_point.append(k)
+    for t in config.tasks:
+        if t.kind == "contact" and t.frame not in [f.frame for f in config.feet]:
+            raise ValueError(f"contact task {t.name!r}: frame {t.frame!r} is not a foot frame")
+    if not all(model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT):
+        raise ValueError("make_wblc: every actuator must drive a joint")
+    dofs = model.jnt_dofadr[model.actuator_trnid[:, 0]]
+    selection = jnp.zeros((model.nu, model.nv)).at[jnp.arange(model.nu), dofs].set(
+        model.actuator_gear[:, 0]
+    )
+    limits = jnp.where(
+        model.actuator_ctrllimited.astype(bool),
+        jnp.max(jnp.abs(model.actuator_ctrlrange), axis=1) * model.actuator_gear[:, 0],
+        jnp.inf,
+    )
+    unactuated = tuple(sorted(set(range(model.nv)) - {int(v) for v in dofs}))
+    return WBLC(
+        model,
+        mx,
+        config,
+        indices,
+        tuple(point_sites),
+        tuple(foot_of_point),
+        selection,
+        limits,
+        unactuated,
+    )
+
+
+def wblc_tick(
+    ctrl: WBLC, qpos, qvel, refs: dict, contact, gains=None, previous=None
+) -> WBLCOutput:
+    """One WBLC tick (see the module doc). ``contact``: (feet,) weights in [0, 1]; a foot
+    is in contact when > 0 and its normal-force bound ramps with the weight (blending)."""
+    cfg, mx = ctrl.config, ctrl.mx
+    gains = ctrl.default_gains() if gains is None else gains
+    snap = ctrl.snapshot(qpos, qvel)
+    d = snap.data
+    dtype = d.qvel.dtype
+    contact = jnp.clip(jnp.asarray(contact, dtype), 0.0, 1.0)
+    foot_frames = [f.frame for f in cfg.feet]
+
+    used = {name for level in cfg.hierarchy for name in level.split("+")}
+    used |= {cfg.com_task, cfg.cam_task}
+    terms = {}
+    for t in cfg.tasks:
+        if t.name not in used:
+            continue
+        ref = refs[t.name]
+        if t.kind == "contact":  # the contact set decides, not the reference
+            ref = ref.replace(weight=(contact[foot_frames.index(t.frame)] > 0).astype(dtype))
+        terms[t.name] = task_terms(mx, t, ctrl.indices[t.name], snap, ref, gains[t.name])
+
+    # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft.
+    qp = cfg.force_qp
+    gravity = -mx.opt.gravity
+    f_lin = snap.total_mass * (terms[cfg.com_task].desired + gravity)
+    f_ang = terms[cfg.cam_task].desired
+    points = d.site_xpos[jnp.asarray(ctrl.point_sites)]
+    weight = contact[jnp.asarray(ctrl.foot_of_point)]
+    fz_max = qp.fz_min + weight * (qp.fz_max - qp.fz_min)
+    previous = ctrl.initial_qp_state(dtype) if previous is None else previous
+    sol = force_qp.solve_contact_forces(
+        points, weight > 0, snap.com, f_lin, f_ang, qp, fz_max=fz_max, warm_start=previous
+    )
+    # Eq. 15: the CAM task follows what the forces can do.
+    cam = terms[cfg.cam_task]
+    terms[cfg.cam_task] = cam.replace(desired=refs[cfg.cam_task].weight * sol.angular)
+
+    jacs, cmds = [], []
+    for level in cfg.hierarchy:
+        names = level.split("+")
+        jacs.append(jnp.concatenate([terms[n].jacobian for n in names], axis=0))
+        cmds.append(jnp.concatenate([terms[n].desired - terms[n].jdot_qdot for n in names]))
+    chol = jax.scipy.linalg.cho_factor(snap.mass_matrix)
+    mass_inv = jax.scipy.linalg.cho_solve(chol, jnp.eye(mx.nv, dtype=dtype))
+    hier = prioritized_accelerations(jacs, cmds, mass_inv, cfg.pinv_rtol)
+
+    # Torques, Eq. 16-19.
+    j_r = jnp.concatenate(
+        [jac.point_jacobian(mx, d, d.site_xpos[s], int(ctrl.model.site_bodyid[s]))
+         for s in ctrl.point_sites],
+        axis=0,
+    )
+    tau_task = (
+        snap.mass_matrix @ hier.qdd + snap.coriolis + snap.gravity - j_r.T @ sol.forces.reshape(-1)
+    )
+    a_null = snap.mass_matrix @ hier.null_space
+    system = jnp.concatenate([ctrl.selection.T, -a_null], axis=1)  # (nv, nu + nv)
+    solution = system.T @ (pinv_psd(system @ system.T, cfg.torque_pinv_rtol) @ tau_task)
+    nu = ctrl.selection.shape[0]
+    torques, qdd_res = solution[:nu], solution[nu:]
+    residual = system @ solution - tau_task
+    base_residual = residual[jnp.asarray(ctrl.unactuated_dofs)]
+
+    diagnostics = WBLCDiagnostics(
+        qdd_desired=hier.qdd + hier.null_space @ qdd_res,
+        contact_forces=sol.forces,
+        cam_rate_achieved=sol.angular,
+        qp_relaxed=sol.relaxed,
+        qp_violation=sol.violation,
+        qp_dual_residual=sol.dual_residual,
+        base_residual=base_residual,
+        torque_over_limit=jnp.abs(torques) > ctrl.torque_limits,
+        task_errors={n: t.error for n, t in terms.items()},
+        level_residuals=hier.task_residuals,
+    )
+    return WBLCOutput(torques, diagnostics, sol.warm_start)
