@@ -59,13 +59,15 @@ def solve_qp(
     alpha: float = 1.6,
     adapt_every: int = 25,
     warm_start: ADMMState | None = None,
+    unroll: int = 5,
 ) -> ADMMResult:
     """Run ``iterations`` ADMM steps on the QP (see the module doc).
 
     Every ``adapt_every`` iterations ``rho`` is rescaled to balance the normalised primal
     and dual residuals (OSQP's rule) and the small KKT matrix is refactored: badly scaled
     problems (e.g. a heavily weighted soft task) then converge without tuning ``rho``.
-    ``adapt_every = 0`` keeps ``rho`` fixed.
+    ``adapt_every = 0`` keeps ``rho`` fixed. ``unroll``: iterations per loop trip
+    (XLA's per-trip overhead on CPU is comparable to one iteration's arithmetic).
     """
     n, m = P.shape[0], A.shape[0]
     state = zero_state(n, m, P.dtype) if warm_start is None else warm_start
@@ -78,10 +80,13 @@ def solve_qp(
         s, rho_now = carry
         rho_vec = jnp.where(is_eq, rho_now * rho_equality_scale, rho_now)
         chol = jax.scipy.linalg.cho_factor(P + sigma * eye + A.T @ (rho_vec[:, None] * A))
+        # The explicit inverse turns each iteration's solve into a mat-vec: for these small
+        # systems a LAPACK call per iteration costs more than the arithmetic.
+        kkt_inv = jax.scipy.linalg.cho_solve(chol, eye)
 
         def step(s: ADMMState, _):
             rhs = sigma * s.x - q + A.T @ (rho_vec * s.z - s.y)
-            x_tilde = jax.scipy.linalg.cho_solve(chol, rhs)
+            x_tilde = kkt_inv @ rhs
             z_tilde = A @ x_tilde
             x = alpha * x_tilde + (1.0 - alpha) * s.x
             z_relaxed = alpha * z_tilde + (1.0 - alpha) * s.z
@@ -89,7 +94,7 @@ def solve_qp(
             y = s.y + rho_vec * (z_relaxed - z)
             return ADMMState(x, z, y), None
 
-        s, _ = jax.lax.scan(step, s, None, length=block)
+        s, _ = jax.lax.scan(step, s, None, length=block, unroll=unroll)
         if adapt_every > 0:
             ax, px, aty = A @ s.x, P @ s.x, A.T @ s.y
             prim = jnp.max(jnp.abs(ax - s.z)) / (
@@ -110,27 +115,29 @@ def solve_qp(
     return ADMMResult(state.x, state, primal, dual)
 
 
-def _kkt_point(P, q, A, lower, upper, at_lower, at_upper, delta, refinements):
+def _kkt_point(P, q, A, lower, upper, at_lower, at_upper, delta, refinements, h_inv, gram):
     """Solve the equality-constrained QP on a guessed active set; say whether the result
-    satisfies the KKT conditions of the full QP."""
-    n = P.shape[0]
+    satisfies the KKT conditions of the full QP. ``h_inv = (P + dI)^-1`` and
+    ``gram = A h_inv A'`` do not depend on the guess and are shared between steps."""
     dtype = P.dtype
     is_eq = (upper - lower) < 1e-9
     at_lower = at_lower | is_eq
     at_upper = at_upper & ~is_eq
     d = (at_lower | at_upper).astype(dtype)
     target = jnp.where(at_upper, upper, lower) * d
-    # The quasi-definite KKT system [[P + dI, A_a'], [A_a, -dI]] by its Schur complement:
-    # two Cholesky factorisations (LU under vmap has hung XLA:CPU at large batches).
-    h_chol = jax.scipy.linalg.cho_factor(P + delta * jnp.eye(n, dtype=dtype))
+    # The quasi-definite KKT system [[P + dI, A_a'], [A_a, -dI]] by its Schur complement
+    # (Cholesky; LU under vmap has hung XLA:CPU at large batches).
     ad = A * d[:, None]
-    h_at = jax.scipy.linalg.cho_solve(h_chol, ad.T)  # (n, m)
-    s_chol = jax.scipy.linalg.cho_factor(ad @ h_at + jnp.diag(delta * d + (1.0 - d)))
+    schur = gram * d[:, None] * d[None, :] + jnp.diag(delta * d + (1.0 - d))
+    s_inv = jax.scipy.linalg.cho_solve(
+        jax.scipy.linalg.cho_factor(schur), jnp.eye(A.shape[0], dtype=dtype)
+    )
+    h_at = h_inv @ ad.T
 
     def damped_solve(r_x, r_y):
         """Solve [[P + dI, A_a'], [A_a, -dI - (I - D)]] [x; y] = [r_x; r_y]."""
-        h_rx = jax.scipy.linalg.cho_solve(h_chol, r_x)
-        y = jax.scipy.linalg.cho_solve(s_chol, ad @ h_rx - r_y)
+        h_rx = h_inv @ r_x
+        y = s_inv @ (ad @ h_rx - r_y)
         return h_rx - h_at @ y, y
 
     x, y = damped_solve(-q, target)
@@ -185,8 +192,13 @@ def polish(
     at_lower, at_upper = y < -dual_tolerance, y > dual_tolerance
     admm_violation = jnp.maximum(_violation(A, lower, upper, result.x), 1e-9)
     x_out, y_out, accepted = result.x, y, jnp.asarray(False)
+    eye = jnp.eye(P.shape[0], dtype=P.dtype)
+    h_inv = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(P + delta * eye), eye)
+    gram = A @ h_inv @ A.T
     for _ in range(steps):
-        x, y_pol, ok = _kkt_point(P, q, A, lower, upper, at_lower, at_upper, delta, refinements)
+        x, y_pol, ok = _kkt_point(
+            P, q, A, lower, upper, at_lower, at_upper, delta, refinements, h_inv, gram
+        )
         ok = ok & (_violation(A, lower, upper, x) <= admm_violation) & ~accepted
         x_out = jnp.where(ok, x, x_out)
         y_out = jnp.where(ok, y_pol, y_out)
