@@ -2,9 +2,10 @@
 
 For tasks ``k = 1..n`` with Jacobians ``J_k`` and commands ``e_k = xdd_k^d - Jdot_k qd``::
 
-    qdd_1 = Jbar_1 e_1,                                        Jbar = A^-1 J' (J A^-1 J')^+
-    qdd_k = Jbar_{k|prec(k)} (e_k - J_k sum_{i<k} qdd_i),      J_{k|prec(k)} = J_k N_prec(k)
-    N_prec(k) = N_1 N_{2|1} ... N_{k-1|k-2},                   N_{s|s-1} = I - Jbar_{s|prec} J_{s|prec}
+    qdd_1 = Jbar_1 e_1,                           Jbar = A^-1 J' (J A^-1 J')^+
+    qdd_k = Jbar_{k|prec(k)} (e_k - J_k sum_{i<k} qdd_i)
+    J_{k|prec(k)} = J_k N_prec(k),                N_prec(k) = N_1 N_{2|1} ... N_{k-1|k-2}
+    N_{s|s-1} = I - Jbar_{s|prec(s)} J_{s|prec(s)}
 
 and ``qdd_[task] = sum_k qdd_k`` (Eq. 9). The inverses are dynamically consistent
 (Eq. 7): lower-priority accelerations are filtered through ``N_prec``, which leaves every
@@ -36,10 +37,10 @@ class HierarchyResult:
     """Per level, ``e_k - J_k qdd_[task]``: what the level could not achieve (0 if met)."""
 
 
-def dynamically_consistent_inverse(jacobian, mass_inv, rtol: float = 1e-8):
-    """``Jbar = A^-1 J' (J A^-1 J')^+`` (Eq. 7)."""
+def dynamically_consistent_inverse(jacobian, mass_inv, rtol: float = 1e-8, scale=None):
+    """``Jbar = A^-1 J' (J A^-1 J')^+`` (Eq. 7); ``scale``: see :func:`pinv_psd`."""
     a_inv_jt = mass_inv @ jacobian.T
-    return a_inv_jt @ pinv_psd(jacobian @ a_inv_jt, rtol)
+    return a_inv_jt @ pinv_psd(jacobian @ a_inv_jt, rtol, scale)
 
 
 def prioritized_accelerations(
@@ -60,7 +61,9 @@ def prioritized_accelerations(
     qdd = jnp.zeros(nv, mass_inv.dtype)
     for jac, cmd in zip(jacobians, commands, strict=True):
         projected = jac @ null  # J_{k|prec(k)}
-        jbar = dynamically_consistent_inverse(projected, mass_inv, rtol)
+        # Rank is judged against the task's own size before projection (see pinv_psd).
+        size = jnp.max(jnp.sum((jac @ mass_inv) * jac, axis=1))
+        jbar = dynamically_consistent_inverse(projected, mass_inv, rtol, size)
         qdd = qdd + jbar @ (cmd - jac @ qdd)
         null = null @ (eye - jbar @ projected)
     residuals = tuple(cmd - jac @ qdd for jac, cmd in zip(jacobians, commands, strict=True))

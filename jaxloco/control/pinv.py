@@ -27,22 +27,34 @@ def _relative_cutoff(rtol, dtype):
     return max(rtol, 100.0 * float(jnp.finfo(dtype).eps))
 
 
+def pinv_psd(matrix, rtol: float = 1e-8, scale=None):
+    """``matrix^+`` for symmetric PSD ``matrix``: eigenvalues ``<= rtol * scale`` count as 0.
+
+    ``scale`` defaults to the largest eigenvalue. Give it when the whole matrix may be
+    numerically zero, e.g. a task projected into the null space of the tasks above it:
+    relative to its own largest eigenvalue (~1e-30) round-off would look like rank; relative
+    to the unprojected task's size it is zero.
+    """
+    dtype = jnp.asarray(matrix).dtype
+    scale = jnp.zeros((), dtype) if scale is None else jax.lax.stop_gradient(scale)
+    return _pinv_psd(matrix, rtol, scale)
+
+
 @functools.partial(jax.custom_jvp, nondiff_argnums=(1,))
-def pinv_psd(matrix, rtol: float = 1e-8):
-    """``matrix^+`` for symmetric PSD ``matrix``; eigenvalues ``<= rtol * max`` count as 0."""
+def _pinv_psd(matrix, rtol, scale):
     w, v = jnp.linalg.eigh(matrix)
     cutoff = _relative_cutoff(rtol, matrix.dtype) * jnp.maximum(
-        jnp.max(w), jnp.finfo(matrix.dtype).tiny
+        jnp.maximum(jnp.max(w), scale), jnp.finfo(matrix.dtype).tiny
     )
     keep = w > cutoff
     inv_w = jnp.where(keep, 1.0 / jnp.where(keep, w, 1.0), 0.0)
     return (v * inv_w) @ v.T
 
 
-@pinv_psd.defjvp
+@_pinv_psd.defjvp
 def _pinv_psd_jvp(rtol, primals, tangents):
-    (m,), (dm,) = primals, tangents
-    p = pinv_psd(m, rtol)
+    (m, scale), (dm, _) = primals, tangents
+    p = _pinv_psd(m, rtol, scale)
     eye = jnp.eye(m.shape[0], dtype=m.dtype)
     dm = 0.5 * (dm + dm.T)
     dp = -p @ dm @ p + p @ p @ dm @ (eye - m @ p) + (eye - p @ m) @ dm @ p @ p
@@ -52,4 +64,8 @@ def _pinv_psd_jvp(rtol, primals, tangents):
 def rank(matrix, rtol: float = 1e-8):
     """Numerical rank under the same threshold as :func:`pinv_psd`."""
     w = jnp.linalg.eigvalsh(matrix)
-    return jnp.sum(w > _relative_cutoff(rtol, matrix.dtype) * jnp.maximum(jnp.max(w), jnp.finfo(matrix.dtype).tiny))
+    return jnp.sum(
+        w
+        > _relative_cutoff(rtol, matrix.dtype)
+        * jnp.maximum(jnp.max(w), jnp.finfo(matrix.dtype).tiny)
+    )

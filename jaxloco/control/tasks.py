@@ -50,9 +50,13 @@ class TaskSpec:
 
     def __post_init__(self):
         if self.kind not in KINDS:
-            raise ValueError(f"TaskSpec {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}")
+            raise ValueError(
+                f"TaskSpec {self.name!r}: kind must be one of {KINDS}, got {self.kind!r}"
+            )
         if self.kind in ("orientation", "position", "contact") and not self.frame:
-            raise ValueError(f"TaskSpec {self.name!r}: kind {self.kind!r} needs a frame (site name)")
+            raise ValueError(
+                f"TaskSpec {self.name!r}: kind {self.kind!r} needs a frame (site name)"
+            )
         if self.kind == "joints" and not self.joints:
             raise ValueError(f"TaskSpec {self.name!r}: kind 'joints' needs joint names")
         for field in ("kp", "kd"):
@@ -155,7 +159,10 @@ def task_index(model: mujoco.MjModel, spec: TaskSpec) -> _Index:
             j = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, name)
             if j < 0:
                 raise ValueError(f"TaskSpec {spec.name!r}: no joint {name!r} in the model")
-            if int(model.jnt_type[j]) not in (int(mujoco.mjtJoint.mjJNT_HINGE), int(mujoco.mjtJoint.mjJNT_SLIDE)):
+            if int(model.jnt_type[j]) not in (
+                int(mujoco.mjtJoint.mjJNT_HINGE),
+                int(mujoco.mjtJoint.mjJNT_SLIDE),
+            ):
                 raise ValueError(f"TaskSpec {spec.name!r}: joint {name!r} is not 1-dof")
             ids.append(j)
         return _Index(

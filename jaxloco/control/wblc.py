@@ -36,7 +36,6 @@ from jaxloco.control.hierarchy import prioritized_accelerations
 from jaxloco.control.pinv import pinv_psd
 from jaxloco.control.tasks import (
     RobotSnapshot,
-    TaskReference,
     TaskSpec,
     default_gains,
     hold_reference,
@@ -194,8 +193,10 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
     if not all(model.actuator_trntype == mujoco.mjtTrn.mjTRN_JOINT):
         raise ValueError("make_wblc: every actuator must drive a joint")
     dofs = model.jnt_dofadr[model.actuator_trnid[:, 0]]
-    selection = jnp.zeros((model.nu, model.nv)).at[jnp.arange(model.nu), dofs].set(
-        model.actuator_gear[:, 0]
+    selection = (
+        jnp.zeros((model.nu, model.nv))
+        .at[jnp.arange(model.nu), dofs]
+        .set(model.actuator_gear[:, 0])
     )
     limits = jnp.where(
         model.actuator_ctrllimited.astype(bool),
@@ -216,9 +217,7 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
     )
 
 
-def wblc_tick(
-    ctrl: WBLC, qpos, qvel, refs: dict, contact, gains=None, previous=None
-) -> WBLCOutput:
+def wblc_tick(ctrl: WBLC, qpos, qvel, refs: dict, contact, gains=None, previous=None) -> WBLCOutput:
     """One WBLC tick (see the module doc). ``contact``: (feet,) weights in [0, 1]; a foot
     is in contact when > 0 and its normal-force bound ramps with the weight (blending)."""
     cfg, mx = ctrl.config, ctrl.mx
@@ -267,8 +266,10 @@ def wblc_tick(
 
     # Torques, Eq. 16-19.
     j_r = jnp.concatenate(
-        [jac.point_jacobian(mx, d, d.site_xpos[s], int(ctrl.model.site_bodyid[s]))
-         for s in ctrl.point_sites],
+        [
+            jac.point_jacobian(mx, d, d.site_xpos[s], int(ctrl.model.site_bodyid[s]))
+            for s in ctrl.point_sites
+        ],
         axis=0,
     )
     tau_task = (

@@ -1,0 +1,254 @@
+"""WBLC: pseudo-inverse, hierarchy (Eq. 9-10), one tick on Valkyrie (Eq. 14-19), standing
+in MuJoCo, and gradients of torques with respect to task gains."""
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxloco.control.hierarchy import prioritized_accelerations
+from jaxloco.control.pinv import pinv_psd, rank
+from jaxloco.control.presets import wblc_config
+from jaxloco.control.wblc import make_wblc
+from jaxloco.dynamics import jacobians as J
+from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
+from jaxloco.sim import run_closed_loop
+
+RNG = np.random.default_rng(0)
+
+
+def random_spd(n, rng):
+    b = rng.normal(size=(n, n))
+    return b @ b.T + n * np.eye(n)
+
+
+# --- pseudo-inverse ---------------------------------------------------------------------
+
+
+def test_pinv_psd_matches_numpy_on_rank_deficient_matrices():
+    for r in (1, 3, 5):
+        b = RNG.normal(size=(6, r))
+        m = b @ b.T
+        np.testing.assert_allclose(
+            pinv_psd(jnp.asarray(m)), np.linalg.pinv(m, rcond=1e-8, hermitian=True), atol=1e-9
+        )
+        assert int(rank(jnp.asarray(m))) == r
+
+
+def test_pinv_psd_gradient_at_constant_rank():
+    """The custom JVP (Golub-Pereyra) against finite differences, both modes."""
+    b = jnp.asarray(RNG.normal(size=(5, 3)))
+    w = jnp.asarray(RNG.normal(size=(5, 5)))
+
+    def f(b):
+        return jnp.sum(w * pinv_psd(b @ b.T))
+
+    check_grads(f, (b,), order=1, modes=("fwd", "rev"), atol=1e-6, rtol=1e-6)
+    assert bool(jnp.all(jnp.isfinite(jax.grad(f)(b))))
+
+
+# --- hierarchy --------------------------------------------------------------------------
+
+
+def random_tasks(rng, nv, dims):
+    return [jnp.asarray(rng.normal(size=(k, nv))) for k in dims], [
+        jnp.asarray(rng.normal(size=k)) for k in dims
+    ]
+
+
+def test_higher_priority_unchanged_by_lower_tasks():
+    nv = 12
+    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    jacs, cmds = random_tasks(RNG, nv, (3, 4, 6, 5))  # 18 rows > 12: conflicts below
+    top = prioritized_accelerations(jacs[:2], cmds[:2], a_inv)
+    for extra in range(1, 3):
+        more = prioritized_accelerations(jacs[: 2 + extra], cmds[: 2 + extra], a_inv)
+        for k in range(2):
+            np.testing.assert_allclose(jacs[k] @ more.qdd, jacs[k] @ top.qdd, atol=1e-9)
+    # Changing a lower task's command leaves the higher ones alone.
+    changed = prioritized_accelerations(jacs, [*cmds[:3], cmds[3] * 10 + 1], a_inv)
+    base = prioritized_accelerations(jacs, cmds, a_inv)
+    for k in range(3):
+        np.testing.assert_allclose(jacs[k] @ changed.qdd, jacs[k] @ base.qdd, atol=1e-9)
+    # The top two are met exactly (7 independent rows of 12).
+    np.testing.assert_allclose(jacs[0] @ base.qdd, cmds[0], atol=1e-9)
+    np.testing.assert_allclose(jacs[1] @ base.qdd, cmds[1], atol=1e-9)
+
+
+def test_without_conflicts_every_task_is_met():
+    nv = 14
+    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    jacs, cmds = random_tasks(RNG, nv, (3, 3, 4, 2))  # 12 independent rows <= 14
+    res = prioritized_accelerations(jacs, cmds, a_inv)
+    for jac, cmd in zip(jacs, cmds, strict=True):
+        np.testing.assert_allclose(jac @ res.qdd, cmd, atol=1e-9)
+    # The final null space leaves every task unchanged (Eq. 13): J_k N = 0.
+    for jac in jacs:
+        np.testing.assert_allclose(jac @ res.null_space, 0.0, atol=1e-9)
+
+
+def test_redundant_and_masked_levels_are_harmless():
+    nv = 10
+    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    jacs, cmds = random_tasks(RNG, nv, (3, 2))
+    redundant = jacs[0][:2]  # rows already controlled above, commanded consistently
+    res = prioritized_accelerations(
+        [jacs[0], redundant, jnp.zeros((4, nv)), jacs[1]],
+        [cmds[0], cmds[0][:2], jnp.zeros(4), cmds[1]],
+        a_inv,
+    )
+    np.testing.assert_allclose(jacs[0] @ res.qdd, cmds[0], atol=1e-9)
+    np.testing.assert_allclose(jacs[1] @ res.qdd, cmds[1], atol=1e-9)
+    assert bool(jnp.all(jnp.isfinite(res.qdd)))
+
+
+# --- WBLC on Valkyrie -------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def valkyrie():
+    model = load_valkyrie()
+    data = mujoco.MjData(model)
+    data.qpos[:] = keyframe_qpos(model, "walk")
+    mujoco.mj_forward(model, data)
+    ctrl = make_wblc(model, wblc_config("walking"))
+    refs = ctrl.hold_references(jnp.asarray(data.qpos))
+    for name in ("left_foot_ori", "right_foot_ori", "left_foot_pos", "right_foot_pos"):
+        refs[name] = refs[name].replace(weight=jnp.zeros(()))
+    tick = jax.jit(lambda q, v, refs, prev, gains: ctrl(q, v, refs, jnp.ones(2), gains, prev))
+    return model, data, ctrl, refs, tick
+
+
+def test_one_tick_is_consistent(valkyrie):
+    model, data, ctrl, refs, tick = valkyrie
+    rng = np.random.default_rng(5)
+    qvel = rng.normal(scale=0.2, size=model.nv)
+    q, v = jnp.asarray(data.qpos), jnp.asarray(qvel)
+    out = tick(q, v, refs, ctrl.initial_qp_state(), ctrl.default_gains())
+    dg = out.diagnostics
+    # Eq. 17 holds on the floating base: the torques realise qdd^d with the QP forces.
+    assert float(jnp.max(jnp.abs(dg.base_residual))) < 1e-6
+    snap = ctrl.snapshot(q, v)
+    d = snap.data
+    jr = jnp.concatenate(
+        [
+            J.point_jacobian(ctrl.mx, d, d.site_xpos[s], int(model.site_bodyid[s]))
+            for s in ctrl.point_sites
+        ]
+    )
+    lhs = (
+        snap.mass_matrix @ dg.qdd_desired
+        + snap.coriolis
+        + snap.gravity
+        - jr.T @ dg.contact_forces.reshape(-1)
+    )
+    np.testing.assert_allclose(lhs, ctrl.selection.T @ out.torques, atol=1e-6)
+    # Feet held: contact rows met; CoM task met; forces produce the CoM force.
+    for side in ("left", "right"):
+        site = model.site(f"{side}_foot_cop").id
+        body = int(model.site_bodyid[site])
+        jc = J.frame_jacobian(ctrl.mx, d, d.site_xpos[site], body)
+        jdqd = J.frame_jdot_qdot(ctrl.mx, d, d.site_xpos[site], body)
+        kd = ctrl.default_gains()[f"{side}_contact"]["kd"]
+        np.testing.assert_allclose(jc @ dg.qdd_desired + jdqd, -kd * (jc @ v), atol=1e-6)
+    com = ctrl.config.task("com")
+    jcom = J.com_jacobian(ctrl.mx, d)
+    gains = ctrl.default_gains()["com"]
+    desired = gains["kp"] * (refs["com"].pos - snap.com) + gains["kd"] * (0 - jcom @ v)
+    np.testing.assert_allclose(
+        jcom @ dg.qdd_desired + J.com_jdot_qdot(ctrl.mx, d), desired, atol=1e-6
+    )
+    assert com.kind == "com"
+    total_force = dg.contact_forces.sum(0)
+    np.testing.assert_allclose(
+        total_force, snap.total_mass * (desired + np.array([0, 0, 9.81])), atol=1e-3
+    )
+    assert not bool(dg.qp_relaxed)
+    # Limits are flagged, not clipped (random velocities ask for more than the neck has).
+    limits = np.abs(model.actuator_ctrlrange).max(1)
+    np.testing.assert_array_equal(dg.torque_over_limit, np.abs(out.torques) > limits)
+
+
+def test_wblc_matches_mujoco_forward_dynamics(valkyrie):
+    """With MuJoCo's contact forces replaced by the QP's, MuJoCo's own forward dynamics
+    (mj_forward without contacts + applied forces) reproduce qdd^d."""
+    model, data, ctrl, refs, tick = valkyrie
+    v = np.random.default_rng(6).normal(scale=0.2, size=model.nv)
+    out = tick(
+        jnp.asarray(data.qpos), jnp.asarray(v), refs, ctrl.initial_qp_state(), ctrl.default_gains()
+    )
+    m2 = mujoco.MjModel.from_xml_path(_path())
+    m2.opt.disableflags |= mujoco.mjtDisableBit.mjDSBL_CONTACT
+    m2.actuator_ctrllimited[:] = 0  # compare the dynamics, not the clamp
+    d2 = mujoco.MjData(m2)
+    d2.qpos[:], d2.qvel[:] = data.qpos, v
+    d2.ctrl[:] = np.asarray(out.torques)
+    mujoco.mj_forward(m2, d2)
+    qfrc = np.zeros(model.nv)
+    for s, f in zip(ctrl.point_sites, np.asarray(out.diagnostics.contact_forces), strict=True):
+        mujoco.mj_applyFT(m2, d2, f, np.zeros(3), d2.site_xpos[s], int(model.site_bodyid[s]), qfrc)
+    d2.qfrc_applied[:] = qfrc
+    mujoco.mj_forward(m2, d2)
+    np.testing.assert_allclose(d2.qacc, np.asarray(out.diagnostics.qdd_desired), atol=1e-6)
+
+
+def _path():
+    from jaxloco.runtime import assets_dir
+
+    return str(assets_dir() / "valkyrie" / "valkyrie.xml")
+
+
+def test_torque_gradients_wrt_gains_match_finite_differences(valkyrie):
+    model, data, ctrl, refs, tick = valkyrie
+    v = jnp.asarray(np.random.default_rng(7).normal(scale=0.2, size=model.nv))
+    q = jnp.asarray(data.qpos).at[0].add(0.01).at[2].add(-0.005)  # CoM off target
+    w = jnp.asarray(np.random.default_rng(8).normal(size=model.nu))
+    base = ctrl.default_gains()
+
+    def loss(com_kp, body_kd):
+        gains = {
+            **base,
+            "com": {**base["com"], "kp": com_kp},
+            "body_ori": {**base["body_ori"], "kd": body_kd},
+        }
+        return w @ tick(q, v, refs, ctrl.initial_qp_state(), gains).torques
+
+    args = (base["com"]["kp"], base["body_ori"]["kd"])
+    grads = jax.grad(loss, argnums=(0, 1))(*args)
+    assert all(bool(jnp.all(jnp.isfinite(g))) for g in grads)
+    assert float(jnp.max(jnp.abs(grads[0]))) > 0
+    check_grads(loss, args, order=1, modes=("fwd", "rev"), eps=1e-3, atol=1e-4, rtol=1e-4)
+
+
+def test_valkyrie_stands_10_s_under_wblc(valkyrie):
+    model, _, ctrl, refs, tick = valkyrie
+    data = mujoco.MjData(model)
+    data.qpos[:] = keyframe_qpos(model, "walk")
+    mujoco.mj_forward(model, data)
+    com0 = data.subtree_com[1].copy()
+    gains = ctrl.default_gains()
+
+    def controller(t, qpos, qvel, prev):
+        out = tick(jnp.asarray(qpos), jnp.asarray(qvel), refs, prev, gains)
+        dg = out.diagnostics
+        return (
+            out.torques,
+            out.qp_state,
+            {"forces": dg.contact_forces, "relaxed": dg.qp_relaxed, "com": dg.task_errors["com"]},
+        )
+
+    log, _ = run_closed_loop(
+        model, data, controller, ctrl.initial_qp_state(), 10_000, stop=lambda d: d.qpos[2] < 0.8
+    )
+    assert not log.fell and len(log.time) == 10_000
+    com_err = np.linalg.norm(log.outputs["com"], axis=1)
+    assert com_err.max() < 0.01, com_err.max()
+    assert np.linalg.norm(data.subtree_com[1] - com0) < 0.01
+    forces = log.outputs["forces"]
+    tangential = np.linalg.norm(forces[..., :2], axis=-1)
+    assert not log.outputs["relaxed"].any()
+    assert np.all(np.abs(forces[..., 0]) <= 0.65 * forces[..., 2] + 1e-6)
+    assert np.all(np.abs(forces[..., 1]) <= 0.65 * forces[..., 2] + 1e-6)
+    assert tangential.max() < 0.65 * 1.5 * forces[..., 2].max()
