@@ -1,0 +1,218 @@
+"""WBLC per control tick on Valkyrie: latency, batched throughput, a profile by stage, the
+force QP's accuracy against quadprog by iteration count, and PlaCo's C++ whole-body QP.
+
+    python benchmarks/bench_wblc.py [--json PATH] [--quick]
+
+The tick is the walking hierarchy in double support (``jaxloco.control.presets``), float32,
+called as users call it: ``jax.jit`` of ``WBLC.__call__`` from Python. Stages are timed as
+separate jitted functions on the same state to show what bounds the time. The peer, when
+``placo`` and ``example-robot-data`` are installed (``pip install -e .[bench]``), is
+PlaCo's ``DynamicsSolver`` on the Talos humanoid (nv = 38): two foot contacts, CoM, trunk
+orientation and joint posture, one ``solve(True)`` per tick.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from _common import compile_seconds, parse_args, print_table, time_calls, write_json  # noqa: E402
+
+from jaxloco.control import force_qp  # noqa: E402
+from jaxloco.control.presets import walking_config  # noqa: E402
+from jaxloco.control.wblc import make_wblc  # noqa: E402
+from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie  # noqa: E402
+from jaxloco.runtime import watchdog  # noqa: E402
+
+SWING = ("left_foot_ori", "right_foot_ori", "left_foot_pos", "right_foot_pos")
+
+
+def setup():
+    model = load_valkyrie()
+    data = mujoco.MjData(model)
+    data.qpos[:] = keyframe_qpos(model, "walk")
+    mujoco.mj_forward(model, data)
+    ctrl = make_wblc(model, walking_config())
+    refs = ctrl.hold_references(jnp.asarray(data.qpos, jnp.float32))
+    for name in SWING:
+        refs[name] = refs[name].replace(weight=jnp.zeros((), jnp.float32))
+    return model, data, ctrl, refs
+
+
+def stage_functions(ctrl, refs):
+    """The tick's stages as separate functions (same inputs), for the profile."""
+    from jaxloco.control.tasks import task_terms
+
+    cfg = ctrl.config
+    gains = ctrl.default_gains()
+
+    def snapshot(q, v):
+        return ctrl.snapshot(q, v)
+
+    def tasks(q, v):
+        snap = ctrl.snapshot(q, v)
+        return [
+            task_terms(ctrl.mx, t, ctrl.indices[t.name], snap, refs[t.name], gains[t.name])
+            for t in cfg.tasks
+            if any(t.name in lvl.split("+") for lvl in cfg.hierarchy)
+        ]
+
+    def qp_only(points, contact, com, f_lin, f_ang):
+        return force_qp.solve_contact_forces(points, contact, com, f_lin, f_ang, cfg.force_qp)
+
+    return {"dynamics snapshot (A, b, g, J_cm, Jdot qd)": snapshot, "snapshot + all tasks": tasks}, qp_only
+
+
+def qp_accuracy_table(n: int) -> list[dict]:
+    """Run in a float64 subprocess: objective error and violation vs quadprog."""
+    code = f"""
+import json, sys, numpy as np, jax, jax.numpy as jnp
+import jaxloco
+jax.config.update("jax_enable_x64", True)
+sys.path.insert(0, "tests")
+from test_force_qp import contact_problem, reference_forces, force_objective
+from jaxloco.control.force_qp import ForceQPParams, solve_contact_forces
+rng = np.random.default_rng(11)
+probs = [contact_problem(rng) for _ in range({n})]
+refs = [reference_forces(*p) for p in probs]
+batch = [jnp.asarray(np.stack(z)) for z in zip(*probs)]
+rows = []
+for it in (50, 100, 200, 400, 800):
+    for polish in (False, True):
+        prm = ForceQPParams(iterations=it, polish=polish)
+        sol = jax.jit(jax.vmap(lambda *a: solve_contact_forces(*a, params=prm)))(*batch)
+        errs = np.array([abs(force_objective(np.asarray(sol.forces[i]), p[0], p[2], p[4])
+                   - force_objective(refs[i], p[0], p[2], p[4])) / force_objective(refs[i], p[0], p[2], p[4])
+                   for i, p in enumerate(probs)])
+        rows.append(dict(iterations=it, polish=polish, median_rel_obj=float(np.median(errs)),
+                         max_rel_obj=float(errs.max()), frac_within_1e3=float(np.mean(errs < 1e-3)),
+                         max_violation_N=float(sol.violation.max()), relaxed=int(sol.relaxed.sum())))
+print("JSON" + json.dumps(rows))
+"""
+    root = Path(__file__).resolve().parent.parent
+    out = subprocess.run(
+        [sys.executable, "-c", code], cwd=root, capture_output=True, text=True, timeout=1200
+    )
+    for line in out.stdout.splitlines():
+        if line.startswith("JSON"):
+            import json
+
+            return json.loads(line[4:])
+    raise RuntimeError(f"QP accuracy subprocess failed:\n{out.stderr[-2000:]}")
+
+
+def placo_peer(repeats: int) -> dict | None:
+    """PlaCo's DynamicsSolver on Talos, per tick; None when placo is not installed."""
+    try:
+        import example_robot_data as erd  # noqa: F401
+        import placo
+    except ImportError:
+        return None
+    import os
+
+    import example_robot_data
+
+    talos = Path(example_robot_data.getModelPath("talos_data/robots/talos_reduced.urdf"))
+    urdf = talos / "talos_data" / "robots" / "talos_reduced.urdf"
+    if not urdf.exists():
+        urdf = next(Path(os.path.dirname(example_robot_data.__file__)).rglob("talos_reduced.urdf"))
+    robot = placo.RobotWrapper(str(urdf), placo.Flags.ignore_collisions)
+    robot.update_kinematics()
+    solver = placo.DynamicsSolver(robot)
+    solver.dt = 0.001
+    solver.mask_fbase(False)
+    for frame in ("left_sole_link", "right_sole_link"):
+        task = solver.add_frame_task(frame, robot.get_T_world_frame(frame))
+        task.configure(frame, "hard", 1.0, 1.0)
+        contact = solver.add_planar_contact(task)
+        contact.length, contact.width, contact.mu = 0.2, 0.1, 0.65
+    com = solver.add_com_task(robot.com_world())
+    com.configure("com", "soft", 1.0)
+    trunk = solver.add_orientation_task("torso_2_link", np.eye(3))
+    trunk.configure("trunk", "soft", 1.0)
+    posture = solver.add_joints_task()
+    posture.set_joints({j: robot.get_joint(j) for j in robot.joint_names()})
+    posture.configure("posture", "soft", 1e-3)
+    for _ in range(10):
+        solver.solve(True)
+    samples = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        for _ in range(50):
+            solver.solve(True)
+            robot.update_kinematics()
+        samples.append((time.perf_counter() - t0) / 50)
+    return {"peer": "PlaCo DynamicsSolver (Talos, nv=%d)" % robot.model.nv, "median_s": float(np.median(samples))}
+
+
+def main():
+    args = parse_args(__doc__.splitlines()[0])
+    repeats = 5 if args.quick else 21
+    batches = (64,) if args.quick else (64, 256, 1024)
+    model, data, ctrl, refs = setup()
+    q = jnp.asarray(data.qpos, jnp.float32)
+    v = jnp.asarray(np.random.default_rng(0).normal(0, 0.1, model.nv), jnp.float32)
+    contact = jnp.ones(2, jnp.float32)
+    prev = ctrl.initial_qp_state(jnp.float32)
+    rows = []
+    with watchdog(args.timeout, "bench_wblc"):
+        tick = jax.jit(lambda q, v, prev: ctrl(q, v, refs, contact, previous=prev))
+        comp, _ = compile_seconds(tick, q, v, prev)
+        t1 = time_calls(tick, q, v, prev, repeats=repeats, inner=20)
+        rows.append(dict(case="WBLC tick, single jitted call", per_tick_us=t1["median_s"] * 1e6,
+                         ticks_per_s=1 / t1["median_s"], compile_s=comp))
+        for b in batches:
+            qb = jnp.broadcast_to(q, (b, model.nq))
+            vb = jnp.asarray(np.random.default_rng(1).normal(0, 0.1, (b, model.nv)), jnp.float32)
+            pb = jax.tree.map(lambda x, b=b: jnp.broadcast_to(x, (b, *x.shape)), prev)
+            batched = jax.jit(jax.vmap(lambda q, v, p: ctrl(q, v, refs, contact, previous=p)))
+            comp_b, _ = compile_seconds(batched, qb, vb, pb)
+            tb = time_calls(batched, qb, vb, pb, repeats=max(3, repeats // 3))
+            rows.append(dict(case=f"WBLC tick, vmap batch {b}", per_tick_us=tb["median_s"] / b * 1e6,
+                             ticks_per_s=b / tb["median_s"], compile_s=comp_b))
+        stages, qp_only = stage_functions(ctrl, refs)
+        for name, fn in stages.items():
+            jf = jax.jit(fn)
+            ts = time_calls(jf, q, v, repeats=repeats, inner=20)
+            rows.append(dict(case=f"stage: {name}", per_tick_us=ts["median_s"] * 1e6))
+        snap = ctrl.snapshot(q, v)
+        pts = snap.data.site_xpos[jnp.asarray(ctrl.point_sites)]
+        qp_args = (pts, jnp.ones(8, bool), snap.com, jnp.asarray([0, 0, 1333.0]), jnp.zeros(3))
+        jq = jax.jit(qp_only)
+        tq = time_calls(jq, *qp_args, repeats=repeats, inner=20)
+        rows.append(dict(case="stage: force QP (ADMM 400 + polish, mu and relaxed)", per_tick_us=tq["median_s"] * 1e6))
+        peer = placo_peer(repeats)
+        if peer is not None:
+            rows.append(dict(case=peer["peer"], per_tick_us=peer["median_s"] * 1e6, ticks_per_s=1 / peer["median_s"]))
+        accuracy = qp_accuracy_table(200 if args.quick else 1000)
+    base = rows[0]["per_tick_us"]
+    for r in rows:
+        r["vs_single_tick"] = r["per_tick_us"] / base
+    if peer is not None:
+        rows[0]["ours_over_peer"] = base / (peer["median_s"] * 1e6)
+    print_table("WBLC on Valkyrie (walking hierarchy, double support, float32)", rows, [
+        ("case", "case", "s"), ("per_tick_us", "us/tick", ".1f"), ("ticks_per_s", "ticks/s", ".0f"),
+        ("compile_s", "compile s", ".1f"), ("vs_single_tick", "time / single tick", ".2f")])
+    if peer is None:
+        print("PlaCo not installed (pip install -e .[bench]): peer row skipped")
+    else:
+        print(f"ours / PlaCo per tick: {rows[0]['ours_over_peer']:.2f}")
+    print_table("Force QP vs quadprog (float64), by ADMM iterations", accuracy, [
+        ("iterations", "iterations", "d"), ("polish", "polish", ""), ("median_rel_obj", "median rel. obj.", ".1e"),
+        ("max_rel_obj", "max rel. obj.", ".1e"), ("frac_within_1e3", "share < 1e-3", ".4f"),
+        ("max_violation_N", "max violation N", ".1e"), ("relaxed", "relaxed", "d")])
+    write_json(args.json, "bench_wblc", {"quick": args.quick, "rows": rows, "qp_accuracy": accuracy, "peer": peer})
+
+
+if __name__ == "__main__":
+    main()
