@@ -32,7 +32,8 @@ test-all: $(STAMP)
 	$(BIN)/python -m pytest -q --runslow
 
 bench: $(STAMP)
-	for b in planner learning dynamics; do \
+	-$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[bench]"
+	for b in planner learning dynamics wblc; do \
 	  $(BIN)/python benchmarks/bench_$$b.py --json bench_results/bench_$$b.json || exit 1; done
 
 lint: $(STAMP)

@@ -70,7 +70,10 @@ def stage_functions(ctrl, refs):
     def qp_only(points, contact, com, f_lin, f_ang):
         return force_qp.solve_contact_forces(points, contact, com, f_lin, f_ang, cfg.force_qp)
 
-    return {"dynamics snapshot (A, b, g, J_cm, Jdot qd)": snapshot, "snapshot + all tasks": tasks}, qp_only
+    return {
+        "dynamics snapshot (A, b, g, J_cm, Jdot qd)": snapshot,
+        "snapshot + all tasks": tasks,
+    }, qp_only
 
 
 def qp_accuracy_table(n: int) -> list[dict]:
@@ -114,18 +117,26 @@ print("JSON" + json.dumps(rows))
 def placo_peer(repeats: int) -> dict | None:
     """PlaCo's DynamicsSolver on Talos, per tick; None when placo is not installed."""
     try:
-        import example_robot_data as erd  # noqa: F401
         import placo
     except ImportError:
         return None
-    import os
+    import importlib.metadata
 
-    import example_robot_data
+    try:
+        files = importlib.metadata.files("example-robot-data") or []
+    except importlib.metadata.PackageNotFoundError:
+        return None
+    urdfs = [f.locate() for f in files if str(f).endswith("talos_data/robots/talos_reduced.urdf")]
+    if not urdfs:
+        return None
+    import re
+    import tempfile
 
-    talos = Path(example_robot_data.getModelPath("talos_data/robots/talos_reduced.urdf"))
-    urdf = talos / "talos_data" / "robots" / "talos_reduced.urdf"
-    if not urdf.exists():
-        urdf = next(Path(os.path.dirname(example_robot_data.__file__)).rglob("talos_reduced.urdf"))
+    # Geometry is irrelevant to the dynamics QP; drop meshes (their package:// paths do
+    # not resolve outside ROS).
+    text = re.sub(r"<(visual|collision)\b.*?</\1>", "", Path(urdfs[0]).read_text(), flags=re.S)
+    urdf = Path(tempfile.mkdtemp()) / "talos_reduced_nomesh.urdf"
+    urdf.write_text(text)
     robot = placo.RobotWrapper(str(urdf), placo.Flags.ignore_collisions)
     robot.update_kinematics()
     solver = placo.DynamicsSolver(robot)
@@ -152,7 +163,10 @@ def placo_peer(repeats: int) -> dict | None:
             solver.solve(True)
             robot.update_kinematics()
         samples.append((time.perf_counter() - t0) / 50)
-    return {"peer": "PlaCo DynamicsSolver (Talos, nv=%d)" % robot.model.nv, "median_s": float(np.median(samples))}
+    return {
+        "peer": "PlaCo DynamicsSolver (Talos, nv=%d)" % robot.model.nv,
+        "median_s": float(np.median(samples)),
+    }
 
 
 def main():
@@ -169,8 +183,14 @@ def main():
         tick = jax.jit(lambda q, v, prev: ctrl(q, v, refs, contact, previous=prev))
         comp, _ = compile_seconds(tick, q, v, prev)
         t1 = time_calls(tick, q, v, prev, repeats=repeats, inner=20)
-        rows.append(dict(case="WBLC tick, single jitted call", per_tick_us=t1["median_s"] * 1e6,
-                         ticks_per_s=1 / t1["median_s"], compile_s=comp))
+        rows.append(
+            dict(
+                case="WBLC tick, single jitted call",
+                per_tick_us=t1["median_s"] * 1e6,
+                ticks_per_s=1 / t1["median_s"],
+                compile_s=comp,
+            )
+        )
         for b in batches:
             qb = jnp.broadcast_to(q, (b, model.nq))
             vb = jnp.asarray(np.random.default_rng(1).normal(0, 0.1, (b, model.nv)), jnp.float32)
@@ -178,8 +198,14 @@ def main():
             batched = jax.jit(jax.vmap(lambda q, v, p: ctrl(q, v, refs, contact, previous=p)))
             comp_b, _ = compile_seconds(batched, qb, vb, pb)
             tb = time_calls(batched, qb, vb, pb, repeats=max(3, repeats // 3))
-            rows.append(dict(case=f"WBLC tick, vmap batch {b}", per_tick_us=tb["median_s"] / b * 1e6,
-                             ticks_per_s=b / tb["median_s"], compile_s=comp_b))
+            rows.append(
+                dict(
+                    case=f"WBLC tick, vmap batch {b}",
+                    per_tick_us=tb["median_s"] / b * 1e6,
+                    ticks_per_s=b / tb["median_s"],
+                    compile_s=comp_b,
+                )
+            )
         stages, qp_only = stage_functions(ctrl, refs)
         for name, fn in stages.items():
             jf = jax.jit(fn)
@@ -190,28 +216,60 @@ def main():
         qp_args = (pts, jnp.ones(8, bool), snap.com, jnp.asarray([0, 0, 1333.0]), jnp.zeros(3))
         jq = jax.jit(qp_only)
         tq = time_calls(jq, *qp_args, repeats=repeats, inner=20)
-        rows.append(dict(case="stage: force QP (ADMM 400 + polish, mu and relaxed)", per_tick_us=tq["median_s"] * 1e6))
+        rows.append(
+            dict(
+                case="stage: force QP (ADMM 400 + polish, mu and relaxed)",
+                per_tick_us=tq["median_s"] * 1e6,
+            )
+        )
         peer = placo_peer(repeats)
         if peer is not None:
-            rows.append(dict(case=peer["peer"], per_tick_us=peer["median_s"] * 1e6, ticks_per_s=1 / peer["median_s"]))
+            rows.append(
+                dict(
+                    case=peer["peer"],
+                    per_tick_us=peer["median_s"] * 1e6,
+                    ticks_per_s=1 / peer["median_s"],
+                )
+            )
         accuracy = qp_accuracy_table(200 if args.quick else 1000)
     base = rows[0]["per_tick_us"]
     for r in rows:
         r["vs_single_tick"] = r["per_tick_us"] / base
     if peer is not None:
         rows[0]["ours_over_peer"] = base / (peer["median_s"] * 1e6)
-    print_table("WBLC on Valkyrie (walking hierarchy, double support, float32)", rows, [
-        ("case", "case", "s"), ("per_tick_us", "us/tick", ".1f"), ("ticks_per_s", "ticks/s", ".0f"),
-        ("compile_s", "compile s", ".1f"), ("vs_single_tick", "time / single tick", ".2f")])
+    print_table(
+        "WBLC on Valkyrie (walking hierarchy, double support, float32)",
+        rows,
+        [
+            ("case", "case", "s"),
+            ("per_tick_us", "us/tick", ".1f"),
+            ("ticks_per_s", "ticks/s", ".0f"),
+            ("compile_s", "compile s", ".1f"),
+            ("vs_single_tick", "time / single tick", ".2f"),
+        ],
+    )
     if peer is None:
         print("PlaCo not installed (pip install -e .[bench]): peer row skipped")
     else:
         print(f"ours / PlaCo per tick: {rows[0]['ours_over_peer']:.2f}")
-    print_table("Force QP vs quadprog (float64), by ADMM iterations", accuracy, [
-        ("iterations", "iterations", "d"), ("polish", "polish", ""), ("median_rel_obj", "median rel. obj.", ".1e"),
-        ("max_rel_obj", "max rel. obj.", ".1e"), ("frac_within_1e3", "share < 1e-3", ".4f"),
-        ("max_violation_N", "max violation N", ".1e"), ("relaxed", "relaxed", "d")])
-    write_json(args.json, "bench_wblc", {"quick": args.quick, "rows": rows, "qp_accuracy": accuracy, "peer": peer})
+    print_table(
+        "Force QP vs quadprog (float64), by ADMM iterations",
+        accuracy,
+        [
+            ("iterations", "iterations", "d"),
+            ("polish", "polish", ""),
+            ("median_rel_obj", "median rel. obj.", ".1e"),
+            ("max_rel_obj", "max rel. obj.", ".1e"),
+            ("frac_within_1e3", "share < 1e-3", ".4f"),
+            ("max_violation_N", "max violation N", ".1e"),
+            ("relaxed", "relaxed", "d"),
+        ],
+    )
+    write_json(
+        args.json,
+        "bench_wblc",
+        {"quick": args.quick, "rows": rows, "qp_accuracy": accuracy, "peer": peer},
+    )
 
 
 if __name__ == "__main__":

@@ -252,3 +252,35 @@ def test_valkyrie_stands_10_s_under_wblc(valkyrie):
     assert np.all(np.abs(forces[..., 0]) <= 0.65 * forces[..., 2] + 1e-6)
     assert np.all(np.abs(forces[..., 1]) <= 0.65 * forces[..., 2] + 1e-6)
     assert tangential.max() < 0.65 * 1.5 * forces[..., 2].max()
+
+
+# --- Fig. 10 experiment -----------------------------------------------------------------
+
+
+def test_body_shaking_ci_sized(tmp_path):
+    import json
+
+    from cli_helpers import run_cli
+
+    proc = run_cli(["body-shaking", "duration=0.3", "ramp=0.1"], tmp_path, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    assert (run / "body_shaking.png").stat().st_size > 10_000
+    summary = json.loads((run / "body_shaking.json").read_text())
+    for which in ("H1", "H2"):
+        r = summary["results"][which]
+        assert not r["fell"] and r["simulated_s"] > 0.29
+        assert r["rms_body_error_rad"] < 0.1 and r["mean_torque_norm_Nm"] > 50
+    assert "h2_tracks_better" in summary and "h2_needs_more_torque" in summary
+
+
+@pytest.mark.slow
+def test_body_shaking_full_defaults(tmp_path):
+    import json
+
+    from cli_helpers import run_cli
+
+    proc = run_cli(["body-shaking"], tmp_path, timeout=1800)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((tmp_path / "run" / "body_shaking.json").read_text())
+    assert not any(r["fell"] for r in summary["results"].values())
