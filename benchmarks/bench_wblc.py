@@ -83,7 +83,7 @@ import json, sys, numpy as np, jax, jax.numpy as jnp
 import jaxloco
 jax.config.update("jax_enable_x64", True)
 sys.path.insert(0, "tests")
-from test_force_qp import contact_problem, reference_forces, force_objective
+from test_force_qp import contact_problem, reference_forces, relative_errors
 from jaxloco.control.force_qp import ForceQPParams, solve_contact_forces
 rng = np.random.default_rng(11)
 probs = [contact_problem(rng) for _ in range({n})]
@@ -94,12 +94,11 @@ for it in (50, 100, 200, 400, 800):
     for polish in (False, True):
         prm = ForceQPParams(iterations=it, polish=polish)
         sol = jax.jit(jax.vmap(lambda *a: solve_contact_forces(*a, params=prm)))(*batch)
-        errs = np.array([abs(force_objective(np.asarray(sol.forces[i]), p[0], p[2], p[4])
-                   - force_objective(refs[i], p[0], p[2], p[4])) / force_objective(refs[i], p[0], p[2], p[4])
-                   for i, p in enumerate(probs)])
-        rows.append(dict(iterations=it, polish=polish, median_rel_obj=float(np.median(errs)),
-                         max_rel_obj=float(errs.max()), frac_within_1e3=float(np.mean(errs < 1e-3)),
-                         max_violation_N=float(sol.violation.max()), relaxed=int(sol.relaxed.sum())))
+        errs = relative_errors(probs, refs, sol)
+        rows.append(dict(
+            iterations=it, polish=polish, median_rel_obj=float(np.median(errs)),
+            max_rel_obj=float(errs.max()), frac_within_1e3=float(np.mean(errs < 1e-3)),
+            max_violation_N=float(sol.violation.max()), relaxed=int(sol.relaxed.sum())))
 print("JSON" + json.dumps(rows))
 """
     root = Path(__file__).resolve().parent.parent
@@ -164,7 +163,7 @@ def placo_peer(repeats: int) -> dict | None:
             robot.update_kinematics()
         samples.append((time.perf_counter() - t0) / 50)
     return {
-        "peer": "PlaCo DynamicsSolver (Talos, nv=%d)" % robot.model.nv,
+        "peer": f"PlaCo DynamicsSolver (Talos, nv={robot.model.nv})",
         "median_s": float(np.median(samples)),
     }
 
