@@ -25,11 +25,11 @@ import numpy as np
 from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
+from mujoco.mjx._src import math as mjx_math
 from omegaconf import OmegaConf
 
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.wblc import make_wblc
-from jaxloco.dynamics import se3
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
 from jaxloco.sim import run_closed_loop
@@ -70,19 +70,12 @@ def shaking_reference(cfg: BodyShakingConfig, q0, t):
     rot = ramp * amp * jnp.sin(w * t + phase)
     vel = ramp * amp * w * jnp.cos(w * t + phase)
     acc = -ramp * amp * w**2 * jnp.sin(w * t + phase)
-    quat = se3.quat_slerp(jnp.asarray([1.0, 0, 0, 0]), _exp(rot), 1.0)
-    return se3_mul(quat, q0), vel, acc
+    return mjx_math.quat_mul(_exp(rot), q0), vel, acc
 
 
 def _exp(rotvec):
     angle = jnp.sqrt(rotvec @ rotvec + 1e-30)
     return jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) / angle * rotvec])
-
-
-def se3_mul(a, b):
-    from mujoco.mjx._src import math as mjx_math
-
-    return mjx_math.quat_mul(a, b)
 
 
 def simulate(model, which: str, cfg: BodyShakingConfig):
