@@ -70,17 +70,3 @@ def rotation_error(q_desired, q):
     s = jnp.sqrt(jnp.where(small, 1.0, s2))
     factor = jnp.where(small, 2.0 / w * (1.0 - s2 / (3.0 * w * w)), 2.0 * jnp.arctan2(s, w) / s)
     return factor * v
-
-
-def quat_slerp(q0, q1, t):
-    """Spherical interpolation from ``q0`` (t = 0) to ``q1`` (t = 1), the shorter way."""
-    rel = mjx_math.quat_mul(q1, mjx_math.quat_inv(q0))
-    rel = jnp.where(rel[0] < 0, -rel, rel)
-    rotvec = rotation_error(rel, jnp.array([1.0, 0.0, 0.0, 0.0], rel.dtype)) * t
-    angle2 = rotvec @ rotvec
-    small = angle2 < 1e-12
-    angle = jnp.sqrt(jnp.where(small, 1.0, angle2))
-    half_sinc = jnp.where(small, 0.5 - angle2 / 48.0, jnp.sin(0.5 * angle) / angle)
-    cos_half = jnp.where(small, 1.0 - angle2 / 8.0, jnp.cos(0.5 * angle))
-    step = jnp.concatenate([cos_half[None], half_sinc * rotvec])
-    return mjx_math.quat_mul(step, q0)
