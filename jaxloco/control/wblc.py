@@ -172,8 +172,10 @@ class WBLC:
         zero = admm.zero_state(n, m, dtype)
         return (zero, zero)
 
-    def __call__(self, qpos, qvel, refs, contact, gains=None, previous=None) -> WBLCOutput:
-        return wblc_tick(self, qpos, qvel, refs, contact, gains, previous)
+    def __call__(
+        self, qpos, qvel, refs, contact, gains=None, previous=None, snap=None
+    ) -> WBLCOutput:
+        return wblc_tick(self, qpos, qvel, refs, contact, gains, previous, snap)
 
 
 def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = None) -> WBLC:
@@ -217,12 +219,15 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
     )
 
 
-def wblc_tick(ctrl: WBLC, qpos, qvel, refs: dict, contact, gains=None, previous=None) -> WBLCOutput:
+def wblc_tick(
+    ctrl: WBLC, qpos, qvel, refs: dict, contact, gains=None, previous=None, snap=None
+) -> WBLCOutput:
     """One WBLC tick (see the module doc). ``contact``: (feet,) weights in [0, 1]; a foot
-    is in contact when > 0 and its normal-force bound ramps with the weight (blending)."""
+    is in contact when > 0 and its normal-force bound ramps with the weight (blending).
+    ``snap``: the state's :class:`RobotSnapshot` when the caller already has it."""
     cfg, mx = ctrl.config, ctrl.mx
     gains = ctrl.default_gains() if gains is None else gains
-    snap = ctrl.snapshot(qpos, qvel)
+    snap = ctrl.snapshot(qpos, qvel) if snap is None else snap
     d = snap.data
     dtype = d.qvel.dtype
     contact = jnp.clip(jnp.asarray(contact, dtype), 0.0, 1.0)

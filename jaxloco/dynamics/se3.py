@@ -70,3 +70,29 @@ def rotation_error(q_desired, q):
     s = jnp.sqrt(jnp.where(small, 1.0, s2))
     factor = jnp.where(small, 2.0 / w * (1.0 - s2 / (3.0 * w * w)), 2.0 * jnp.arctan2(s, w) / s)
     return factor * v
+
+
+def yaw_quat(yaw):
+    """Quaternion ``(w, x, y, z)`` of a rotation by ``yaw`` about the world z axis."""
+    yaw = jnp.asarray(yaw)
+    zero = jnp.zeros_like(yaw)
+    return jnp.stack([jnp.cos(yaw / 2), zero, zero, jnp.sin(yaw / 2)], axis=-1)
+
+
+def quat_slerp(q0, q1, s):
+    """Spherical linear interpolation from ``q0`` (s = 0) to ``q1`` (s = 1), shorter way.
+
+    Falls back to normalised linear interpolation when the two are within 1e-6 rad
+    (where slerp's ``sin`` ratio is 0/0), so it is finite everywhere.
+    """
+    dot = jnp.sum(q0 * q1, axis=-1, keepdims=True)
+    q1 = jnp.where(dot < 0, -q1, q1)
+    dot = jnp.abs(dot)
+    angle = jnp.arccos(jnp.clip(dot, -1.0, 1.0))
+    sin = jnp.sin(angle)
+    near = sin < 1e-6
+    sin_safe = jnp.where(near, 1.0, sin)
+    a = jnp.where(near, 1.0 - s, jnp.sin((1.0 - s) * angle) / sin_safe)
+    b = jnp.where(near, s, jnp.sin(s * angle) / sin_safe)
+    q = a * q0 + b * q1
+    return q / jnp.linalg.norm(q, axis=-1, keepdims=True)

@@ -1,0 +1,551 @@
+"""The walking state machine: phases, contact blending, step planning and replanning.
+
+Pure JAX state (:class:`GaitState`) advanced once per control tick by :func:`advance`
+(paper Section V-B/C). Phases:
+
+- ``START``: double support. The CoM follows a quintic from where it stands to the first
+  lift-off state: over the first stance foot's apex (``x = 0``), ``start_lateral`` towards
+  the other foot, moving forward at ``start_speed`` and accelerating as the LIPM does there.
+- ``WALK``: one single-support step after another. A step begins at a touch-down (or at
+  the first lift-off): the new stance foot's contact blends in and the old one's blends out
+  over ``contact_blend`` seconds (the force QP's normal-force bound ramps, Section III),
+  then the old stance foot swings along a cubic B-spline (:mod:`.swing`) to the planned
+  footstep and lands at the planned switch time, which begins the next step.
+
+**Planning.** At the start of each step, the desired CoM state is expressed in the new
+stance frame (origin at the stance foot, x along the step's heading, y mirrored towards
+the swing side; :mod:`jaxloco.planner.steering`), carried along its LIPM orbit to the apex
+(``lipm.apex_growth_of``), and the step policy (the learned RL-PSP) picks the action there;
+the PSP gives the footstep and the switch time (Algorithm 2). The foot placed by step k
+starts the frame of step k+1, turned by the commanded heading change ``turns[k]`` (Fig. 11).
+The CoM reference is the LIPM's analytic solution about the stance foot (Eq. 35), at a
+constant height ``psp.h`` above it.
+
+**Replanning** (Eq. 33-34). When ``|[x_d - x; 0.5 (xd_d - xd)]|`` (horizontal CoM) stays
+above ``replan_threshold`` for longer than ``replan_delay`` during a swing, the step is
+planned again from ``x_new = gamma x_d + (1 - gamma) x`` (position and velocity), the CoM
+reference restarts there, and the swing foot moves from its current desired position,
+velocity and acceleration to the new footstep (no jump).
+
+Plans that have no solution (``INFEASIBLE`` reasons) fall back to a nominal step and are
+counted in ``GaitState.failed_plans``; step durations are clipped to
+``[min_step_duration, max_step_duration]``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+from flax import struct
+
+from jaxloco.dynamics import se3
+from jaxloco.locomotion.swing import SwingSpline, make_swing
+from jaxloco.planner import lipm
+from jaxloco.planner.psp import INFEASIBLE, PSPParams, plan_apex_components
+from jaxloco.planner.steering import local_to_world, world_to_local
+
+START, WALK = 0, 1
+LEFT, RIGHT = 0, 1
+
+Policy = Callable[[jax.Array], jax.Array]
+
+
+@dataclasses.dataclass(frozen=True)
+class GaitParams:
+    """Numbers of the walking state machine (every field a plain number: hashable, and a
+    hydra structured-config node)."""
+
+    start_duration: float = 1.0
+    """Double support before the first lift-off (s)."""
+    start_lateral: float = 0.056
+    """Lateral CoM offset from the first stance foot at lift-off (m, towards the other foot):
+    the paper's nominal apex ``y``."""
+    start_speed: float = 0.08
+    """Forward CoM speed at the first lift-off (m/s)."""
+    first_stance: int = RIGHT
+    """0: left foot is the first stance foot, 1: right."""
+    contact_blend: float = 0.03
+    """Seconds over which a contact's force bound ramps in or out (authors' code: 0.03)."""
+    swing_height: float = 0.1
+    """Swing-foot height above the landing point at mid-swing (m; authors: 0.1)."""
+    min_step_duration: float = 0.25
+    max_step_duration: float = 2.0
+    """Clip of a step's duration, touch-down to touch-down (s)."""
+    fallback_step: tuple[float, float] = (0.2, 0.3)
+    """(p_x, p_y) used when the planner has no solution (m, local frame)."""
+    fallback_duration: float = 0.45
+    replan: bool = True
+    replan_threshold: float = 0.05
+    """Eq. 33's error norm that triggers replanning."""
+    replan_delay: float = 0.02
+    """How long the error must stay above the threshold (s)."""
+    replan_gamma: float = 0.8
+    """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state."""
+    replan_min_remaining: float = 0.08
+    """No replanning this close to the planned touch-down (s): the foot is landing."""
+
+    def __post_init__(self):
+        checks = {
+            "start_duration": (self.start_duration > 0, "> 0"),
+            "start_lateral": (0 <= self.start_lateral < 0.3, "in [0, 0.3)"),
+            "start_speed": (0 < self.start_speed < 1, "in (0, 1)"),
+            "first_stance": (self.first_stance in (LEFT, RIGHT), "0 (left) or 1 (right)"),
+            "contact_blend": (
+                0 < self.contact_blend < self.min_step_duration,
+                "in (0, min_step_duration)",
+            ),
+            "swing_height": (0 <= self.swing_height < 0.5, "in [0, 0.5)"),
+            "min_step_duration": (
+                0 < self.min_step_duration < self.max_step_duration,
+                "in (0, max_step_duration)",
+            ),
+            "fallback_duration": (
+                self.min_step_duration <= self.fallback_duration <= self.max_step_duration,
+                "in [min_step_duration, max_step_duration]",
+            ),
+            "replan_threshold": (self.replan_threshold > 0, "> 0"),
+            "replan_delay": (self.replan_delay >= 0, ">= 0"),
+            "replan_gamma": (0 <= self.replan_gamma <= 1, "in [0, 1]"),
+            "replan_min_remaining": (self.replan_min_remaining >= 0, ">= 0"),
+        }
+        for name, (ok, rule) in checks.items():
+            value = getattr(self, name)
+            if isinstance(value, float) and not math.isfinite(value):
+                ok = False
+            if not ok:
+                raise ValueError(f"GaitParams.{name} must be {rule}; got {value!r}")
+
+
+@struct.dataclass
+class GaitState:
+    phase: jax.Array
+    step: jax.Array
+    """Steps begun so far (the first lift-off begins step 1)."""
+    stance: jax.Array
+    """Stance foot: 0 left, 1 right (in START: the first stance foot)."""
+    step_start: jax.Array
+    step_duration: jax.Array
+    """Planned time from the step's start to its touch-down."""
+    stance_weight0: jax.Array
+    """Contact weight of the stance foot at the step's start (1 when it already bore load)."""
+    stance_pos: jax.Array
+    """(3,) stance foot's contact-frame position (world)."""
+    heading: jax.Array
+    lateral_sign: jax.Array
+    next_heading: jax.Array
+    foot_yaw: jax.Array
+    """(2,) yaw targets of the feet (left, right)."""
+    body_yaw0: jax.Array
+    body_yaw1: jax.Array
+    """Pelvis/torso yaw interpolates from yaw0 to yaw1 over the step."""
+    com_t0: jax.Array
+    com_pos0: jax.Array
+    com_vel0: jax.Array
+    """CoM reference: LIPM about the stance foot from (pos0, vel0) at com_t0 (horizontal)."""
+    start_com: jax.Array
+    """(3,) CoM at the start of START (the quintic's origin)."""
+    com_height: jax.Array
+    """Reference CoM height above the stance foot (m)."""
+    swing: SwingSpline
+    swing_yaw0: jax.Array
+    turns: jax.Array
+    """(N,) heading change per step (rad); after the last, straight on."""
+    error_time: jax.Array
+    replans: jax.Array
+    failed_plans: jax.Array
+    last_apex: jax.Array
+    last_action: jax.Array
+    last_reason: jax.Array
+    target: jax.Array
+    """(3,) footstep the swing foot is heading to (world)."""
+
+
+@struct.dataclass
+class GaitReferences:
+    """What the controller needs from the gait this tick."""
+
+    contact: jax.Array
+    """(2,) contact weights of (left, right) in [0, 1]."""
+    swinging: jax.Array
+    """(2,) 1 for a foot whose swing tasks are on."""
+    com: tuple
+    """(pos, vel, acc), each (3,)."""
+    swing: tuple
+    """(pos, vel, acc) of the swing foot's contact frame (world)."""
+    swing_foot: jax.Array
+    swing_yaw: tuple
+    """(yaw, yaw rate, yaw acceleration) of the swing foot."""
+    body_yaw: tuple
+    """(yaw, rate, acceleration) of pelvis and torso."""
+    com_error: jax.Array
+    """Eq. 33's error norm."""
+
+
+def _smoothstep(u):
+    """``(s, ds/du, d2s/du2)`` of ``3u^2 - 2u^3`` clipped to [0, 1]."""
+    inside = (u > 0) & (u < 1)
+    u = jnp.clip(u, 0.0, 1.0)
+    return (
+        3 * u**2 - 2 * u**3,
+        jnp.where(inside, 6 * u - 6 * u**2, 0.0),
+        jnp.where(inside, 6 - 12 * u, 0.0),
+    )
+
+
+def quintic(p0, v0, a0, p1, v1, a1, duration, t):
+    """Quintic from (p0, v0, a0) at 0 to (p1, v1, a1) at ``duration``; held after it.
+
+    Returns position, velocity and acceleration at ``t``.
+    """
+    T = duration
+    tc = jnp.clip(t, 0.0, T)
+    c0, c1, c2 = p0, v0, a0 / 2
+    d = p1 - (c0 + c1 * T + c2 * T**2)
+    e = v1 - (c1 + 2 * c2 * T)
+    f = a1 - 2 * c2
+    c3 = (10 * d - 4 * e * T + 0.5 * f * T**2) / T**3
+    c4 = (-15 * d + 7 * e * T - f * T**2) / T**4
+    c5 = (6 * d - 3 * e * T + 0.5 * f * T**2) / T**5
+    pos = c0 + c1 * tc + c2 * tc**2 + c3 * tc**3 + c4 * tc**4 + c5 * tc**5
+    vel = c1 + 2 * c2 * tc + 3 * c3 * tc**2 + 4 * c4 * tc**3 + 5 * c5 * tc**4
+    acc = 2 * c2 + 6 * c3 * tc + 12 * c4 * tc**2 + 20 * c5 * tc**3
+    after = t > T
+    return pos, jnp.where(after, v1, vel), jnp.where(after, a1, acc)
+
+
+def _lateral_sign(stance):
+    """Local +y points from the stance foot to the other: world-left when standing on the
+    right foot."""
+    return jnp.where(stance == RIGHT, 1.0, -1.0)
+
+
+def start_liftoff_state(params: GaitParams, psp: PSPParams, stance_pos, heading, stance):
+    """World CoM (pos 2, vel 2, acc 2) at the first lift-off (see the module doc)."""
+    w = psp.omega
+    sign = _lateral_sign(stance)
+    rel = local_to_world(
+        jnp.stack([0.0 * heading, params.start_lateral + 0.0 * heading]), heading, sign
+    )
+    vel = local_to_world(
+        jnp.stack([params.start_speed + 0.0 * heading, 0.0 * heading]), heading, sign
+    )
+    return stance_pos[:2] + rel, vel, w**2 * rel
+
+
+def init_gait(
+    params: GaitParams,
+    psp: PSPParams,
+    com,
+    feet_pos,
+    heading=0.0,
+    turns=None,
+    num_turns: int = 1,
+) -> GaitState:
+    """The gait at rest in double support (phase START), for a CoM at ``com`` (3,) and the
+    feet's contact frames at ``feet_pos`` (2, 3) (left, right); ``heading`` is the walking
+    direction (rad), ``turns`` the per-step heading changes."""
+    com = jnp.asarray(com)
+    dtype = com.dtype
+    feet_pos = jnp.asarray(feet_pos, dtype)
+    stance = jnp.asarray(params.first_stance, jnp.int32)
+    heading = jnp.asarray(heading, dtype)
+    turns = jnp.zeros((num_turns,), dtype) if turns is None else jnp.asarray(turns, dtype)
+    swing_foot = 1 - stance
+    zero, zero3 = jnp.zeros((), dtype), jnp.zeros(3, dtype)
+    stance_pos = feet_pos[stance]
+    return GaitState(
+        phase=jnp.asarray(START, jnp.int32),
+        step=jnp.asarray(0, jnp.int32),
+        stance=stance,
+        step_start=zero,
+        step_duration=jnp.asarray(params.start_duration, dtype),
+        stance_weight0=jnp.ones((), dtype),
+        stance_pos=stance_pos,
+        heading=heading,
+        lateral_sign=_lateral_sign(stance).astype(dtype),
+        next_heading=heading,
+        foot_yaw=jnp.stack([heading, heading]),
+        body_yaw0=heading,
+        body_yaw1=heading,
+        com_t0=zero,
+        com_pos0=com[:2],
+        com_vel0=jnp.zeros(2, dtype),
+        start_com=com,
+        com_height=jnp.asarray(psp.h, dtype),
+        swing=make_swing(
+            feet_pos[swing_foot], feet_pos[swing_foot], 0.0, 1.0, feet_pos[swing_foot, 2]
+        ),
+        swing_yaw0=heading,
+        turns=turns,
+        error_time=zero,
+        replans=jnp.asarray(0, jnp.int32),
+        failed_plans=jnp.asarray(0, jnp.int32),
+        last_apex=zero3,
+        last_action=zero3,
+        last_reason=jnp.asarray(0, jnp.int32),
+        target=feet_pos[swing_foot],
+    )
+
+
+def com_reference(state: GaitState, params: GaitParams, psp: PSPParams, t):
+    """Desired CoM (pos, vel, acc), each (3,), at time ``t``."""
+    w = psp.omega
+    z = state.stance_pos[2] + state.com_height
+    # START: quintic to the first lift-off state; the height settles with it.
+    p1, v1, a1 = start_liftoff_state(params, psp, state.stance_pos, state.heading, state.stance)
+    zero2 = jnp.zeros_like(p1)
+    qp, qv, qa = quintic(
+        state.start_com[:2], zero2, zero2, p1, v1, a1, params.start_duration, t - state.step_start
+    )
+    zp, zv, za = quintic(
+        state.start_com[2], 0.0, 0.0, z, 0.0, 0.0, params.start_duration, t - state.step_start
+    )
+    # WALK: the LIPM about the stance foot (Eq. 35), per horizontal axis.
+    pivot = state.stance_pos[:2]
+    lp, lv = lipm.propagate(state.com_pos0, state.com_vel0, pivot, w, t - state.com_t0)
+    la = lipm.acceleration(lp, pivot, w)
+    walking = state.phase == WALK
+    pos = jnp.where(walking, jnp.append(lp, z), jnp.append(qp, zp))
+    vel = jnp.where(walking, jnp.append(lv, 0.0), jnp.append(qv, zv))
+    acc = jnp.where(walking, jnp.append(la, 0.0), jnp.append(qa, za))
+    return pos, vel, acc
+
+
+def _plan(
+    params: GaitParams, psp: PSPParams, policy: Policy, com_pos, com_vel, stance_pos, heading, sign
+):
+    """Plan the step from a horizontal CoM state in the stance frame.
+
+    Returns (time from now to touch-down, footstep world xy, apex, action, reason, failed).
+    """
+    w = psp.omega
+    rel = world_to_local(com_pos - stance_pos[:2], heading, sign)
+    vel = world_to_local(com_vel, heading, sign)
+    tau, v_apex, growth, apex_ok = lipm.apex_growth_of(rel[0], vel[0], 0.0, w)
+    y_apex, yd_apex = lipm.propagate_by_growth(rel[1], vel[1], 0.0, w, growth)
+    apex = jnp.stack([y_apex, v_apex, yd_apex])
+    action = policy(apex)
+    plan = plan_apex_components(y_apex, v_apex, yd_apex, action, psp)
+    failed = (~apex_ok) | ((plan.reason & int(INFEASIBLE)) != 0)
+    duration = jnp.where(failed, params.fallback_duration, tau + plan.t_switch)
+    step = jnp.where(
+        failed, jnp.asarray(params.fallback_step, rel.dtype), jnp.stack([plan.p_x, plan.p_y])
+    )
+    foot_xy = stance_pos[:2] + local_to_world(step, heading, sign)
+    reason = plan.reason | jnp.where(apex_ok, 0, 512).astype(jnp.int32)
+    return duration, foot_xy, apex, action, reason, failed
+
+
+def _begin_step(
+    state: GaitState, params, psp, policy, t, stance, stance_pos, swing_pos, heading, weight0
+):
+    """A new single-support step on ``stance`` from time ``t`` (see the module doc)."""
+    dtype = stance_pos.dtype
+    sign = _lateral_sign(stance).astype(dtype)
+    com_pos, com_vel, _ = com_reference(state, params, psp, t)
+    duration, foot_xy, apex, action, reason, failed = _plan(
+        params, psp, policy, com_pos[:2], com_vel[:2], stance_pos, heading, sign
+    )
+    duration = jnp.clip(duration, params.min_step_duration, params.max_step_duration)
+    target = jnp.append(foot_xy, stance_pos[2])
+    turn_index = jnp.minimum(state.step, state.turns.shape[0] - 1)
+    turn = jnp.where(state.step < state.turns.shape[0], state.turns[turn_index], 0.0)
+    next_heading = heading + turn
+    swing = make_swing(
+        swing_pos,
+        target,
+        t + params.contact_blend,
+        duration - params.contact_blend,
+        jnp.maximum(swing_pos[2], target[2]) + params.swing_height,
+    )
+    swing_foot = 1 - stance
+    return state.replace(
+        phase=jnp.asarray(WALK, jnp.int32),
+        step=state.step + 1,
+        stance=stance,
+        step_start=t,
+        step_duration=duration,
+        stance_weight0=jnp.asarray(weight0, dtype),
+        stance_pos=stance_pos,
+        heading=heading,
+        lateral_sign=sign,
+        next_heading=next_heading,
+        body_yaw0=state.body_yaw1,
+        body_yaw1=0.5 * (heading + next_heading),
+        com_t0=t,
+        com_pos0=com_pos[:2],
+        com_vel0=com_vel[:2],
+        swing=swing,
+        swing_yaw0=state.foot_yaw[swing_foot],
+        error_time=jnp.zeros((), dtype),
+        failed_plans=state.failed_plans + failed.astype(jnp.int32),
+        last_apex=apex,
+        last_action=action,
+        last_reason=reason,
+        target=target,
+    )
+
+
+def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
+    """Eq. 34: re-plan the current step from a blend of the desired and measured CoM."""
+    g = params.replan_gamma
+    ref_pos, ref_vel, _ = com_reference(state, params, psp, t)
+    new_pos = g * ref_pos[:2] + (1 - g) * com[:2]
+    new_vel = g * ref_vel[:2] + (1 - g) * com_vel[:2]
+    duration, foot_xy, apex, action, reason, failed = _plan(
+        params, psp, policy, new_pos, new_vel, state.stance_pos, state.heading, state.lateral_sign
+    )
+    elapsed = t - state.step_start
+    remaining = jnp.clip(duration, params.replan_min_remaining, params.max_step_duration)
+    target = jnp.append(foot_xy, state.stance_pos[2])
+    pos, vel, acc = state.swing.evaluate(t)
+    swing = make_swing(
+        pos,
+        target,
+        t,
+        remaining,
+        jnp.maximum(pos[2], target[2] + params.swing_height * jnp.clip(remaining / 0.3, 0.0, 1.0)),
+        vel,
+        acc,
+    )
+    return state.replace(
+        step_duration=elapsed + remaining,
+        com_t0=t,
+        com_pos0=new_pos,
+        com_vel0=new_vel,
+        swing=swing,
+        error_time=jnp.zeros_like(state.error_time),
+        replans=state.replans + 1,
+        failed_plans=state.failed_plans + failed.astype(jnp.int32),
+        last_apex=apex,
+        last_action=action,
+        last_reason=reason,
+        target=target,
+    )
+
+
+def com_error(state: GaitState, params, psp, t, com, com_vel):
+    """Eq. 33 on the horizontal CoM state."""
+    ref_pos, ref_vel, _ = com_reference(state, params, psp, t)
+    err = jnp.concatenate([ref_pos[:2] - com[:2], 0.5 * (ref_vel[:2] - com_vel[:2])])
+    return jnp.linalg.norm(err)
+
+
+def advance(
+    state: GaitState,
+    params: GaitParams,
+    psp: PSPParams,
+    policy: Policy,
+    t,
+    com,
+    com_vel,
+    feet_pos,
+    dt,
+) -> GaitState:
+    """One tick of the state machine at time ``t`` given the measured CoM (3,), its
+    velocity (3,) and the feet's contact-frame positions (2, 3)."""
+    t = jnp.asarray(t, state.step_start.dtype)
+    elapsed = t - state.step_start
+    due = elapsed >= state.step_duration - 1e-9
+
+    def first_liftoff(s):
+        stance = s.stance
+        return _begin_step(
+            s,
+            params,
+            psp,
+            policy,
+            t,
+            stance,
+            feet_pos[stance],
+            feet_pos[1 - stance],
+            s.heading,
+            1.0,
+        )
+
+    def touchdown(s):
+        landed = 1 - s.stance
+        s = s.replace(foot_yaw=s.foot_yaw.at[landed].set(s.next_heading), body_yaw1=s.body_yaw1)
+        return _begin_step(
+            s,
+            params,
+            psp,
+            policy,
+            t,
+            landed,
+            feet_pos[landed],
+            feet_pos[s.stance],
+            s.next_heading,
+            0.0,
+        )
+
+    branch = jnp.where(due, jnp.where(state.phase == START, 1, 2), 0)
+    state = jax.lax.switch(branch, [lambda s: s, first_liftoff, touchdown], state)
+
+    # Replanning (Eq. 33-34), only while a foot swings and not when it is about to land.
+    err = com_error(state, params, psp, t, com, com_vel)
+    elapsed = t - state.step_start
+    swinging = (state.phase == WALK) & (elapsed >= params.contact_blend)
+    remaining = state.step_duration - elapsed
+    over = swinging & (err > params.replan_threshold) & (remaining > params.replan_min_remaining)
+    error_time = jnp.where(over, state.error_time + dt, 0.0)
+    state = state.replace(error_time=error_time)
+    if params.replan:
+        trigger = over & (error_time > params.replan_delay)
+        state = jax.lax.cond(
+            trigger, lambda s: _replan(s, params, psp, policy, t, com, com_vel), lambda s: s, state
+        )
+    return state
+
+
+def references(
+    state: GaitState, params: GaitParams, psp: PSPParams, t, com, com_vel
+) -> GaitReferences:
+    """The contact set and the task references at time ``t``."""
+    dtype = state.step_start.dtype
+    elapsed = t - state.step_start
+    walking = state.phase == WALK
+    blend = params.contact_blend
+    stance_w = jnp.clip(state.stance_weight0 + elapsed / blend, 0.05, 1.0)
+    swing_w = jnp.clip(1.0 - elapsed / blend, 0.0, 1.0)
+    stance_w = jnp.where(walking, stance_w, 1.0)
+    swing_w = jnp.where(walking, swing_w, 1.0)
+    swing_foot = 1 - state.stance
+    contact = jnp.zeros(2, dtype).at[state.stance].set(stance_w).at[swing_foot].set(swing_w)
+    swinging = jnp.zeros(2, dtype).at[swing_foot].set((swing_w <= 0).astype(dtype))
+
+    s, ds, dds = _smoothstep(elapsed / state.step_duration)
+    dyaw = state.body_yaw1 - state.body_yaw0
+    body_yaw = (
+        state.body_yaw0 + dyaw * s,
+        dyaw * ds / state.step_duration,
+        dyaw * dds / state.step_duration**2,
+    )
+    swing_t = (t - state.swing.t0) / state.swing.duration
+    u, du, ddu = _smoothstep(swing_t)
+    fyaw = state.next_heading - state.swing_yaw0
+    swing_yaw = (
+        state.swing_yaw0 + fyaw * u,
+        fyaw * du / state.swing.duration,
+        fyaw * ddu / state.swing.duration**2,
+    )
+    return GaitReferences(
+        contact=contact,
+        swinging=swinging,
+        com=com_reference(state, params, psp, t),
+        swing=state.swing.evaluate(t),
+        swing_foot=swing_foot,
+        swing_yaw=swing_yaw,
+        body_yaw=body_yaw,
+        com_error=com_error(state, params, psp, t, com, com_vel),
+    )
+
+
+def yaw_reference(yaw, rate, acc):
+    """Quaternion, angular velocity and acceleration of a yaw-only orientation."""
+    zero = jnp.zeros_like(yaw)
+    return se3.yaw_quat(yaw), jnp.stack([zero, zero, rate]), jnp.stack([zero, zero, acc])

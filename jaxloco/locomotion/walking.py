@@ -1,0 +1,138 @@
+"""The walking controller: gait state machine + learned step planner + WBLC, one tick.
+
+:func:`make_walking_controller` binds a model, a WBLC configuration (the walking hierarchy
+of Section V-B by default), :class:`~jaxloco.locomotion.gait.GaitParams` and a step policy
+(the shipped RL-PSP policy by default). The result's ``step(t, qpos, qvel, state)`` is pure
+and jittable, and ``jax.vmap`` batches it over robots: the same function drives MuJoCo's C
+engine (:mod:`jaxloco.sim.mujoco_c`) and MJX rollouts (:mod:`jaxloco.sim.mjx_loop`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from flax import struct
+
+from jaxloco.control.presets import walking_config
+from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
+from jaxloco.dynamics.model import FEET
+from jaxloco.learning.checkpoint import LearnedPlanner, load_planner
+from jaxloco.locomotion import gait as gait_lib
+from jaxloco.locomotion.gait import GaitParams, GaitState
+
+
+@struct.dataclass
+class WalkingState:
+    gait: GaitState
+    qp: tuple
+    """The force QP's warm start."""
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class WalkingController:
+    """Build with :func:`make_walking_controller`."""
+
+    wblc: WBLC
+    gait_params: GaitParams
+    planner: LearnedPlanner
+    posture: dict
+    """Hold references of the joint-posture tasks (the keyframe the robot starts in)."""
+    foot_sites: tuple[int, int]
+
+    @property
+    def psp(self):
+        return self.planner.psp
+
+    def init(self, qpos, qvel=None, heading=0.0, turns=None, num_turns: int = 1) -> WalkingState:
+        """The controller's state for a robot standing at ``qpos``."""
+        qpos = jnp.asarray(qpos)
+        qvel = jnp.zeros(self.wblc.mx.nv, qpos.dtype) if qvel is None else jnp.asarray(qvel)
+        snap = self.wblc.snapshot(qpos, qvel)
+        feet = snap.data.site_xpos[jnp.asarray(self.foot_sites)]
+        g = gait_lib.init_gait(
+            self.gait_params, self.psp, snap.com, feet, heading, turns, num_turns
+        )
+        return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
+
+    def step(self, t, qpos, qvel, state: WalkingState, gains=None):
+        """One control tick: ``(torques, new state, log)``."""
+        wblc, params, psp = self.wblc, self.gait_params, self.psp
+        snap = wblc.snapshot(qpos, qvel)
+        dtype = snap.data.qvel.dtype
+        t = jnp.asarray(t, dtype)
+        feet = snap.data.site_xpos[jnp.asarray(self.foot_sites)]
+        dt = jnp.asarray(wblc.model.opt.timestep, dtype)
+        g = gait_lib.advance(
+            state.gait, params, psp, self.planner.policy, t, snap.com, snap.com_vel, feet, dt
+        )
+        r = gait_lib.references(g, params, psp, t, snap.com, snap.com_vel)
+        refs = dict(self.posture)
+        refs["com"] = refs["com"].replace(pos=r.com[0], vel=r.com[1], acc=r.com[2])
+        body = gait_lib.yaw_reference(*r.body_yaw)
+        for name in ("pelvis_ori", "body_ori"):
+            refs[name] = refs[name].replace(pos=body[0], vel=body[1], acc=body[2])
+        swing_ori = gait_lib.yaw_reference(*r.swing_yaw)
+        for k, side in enumerate(FEET):
+            on = r.swinging[k]
+            pos_ref = refs[f"{side}_foot_pos"]
+            refs[f"{side}_foot_pos"] = pos_ref.replace(
+                pos=r.swing[0], vel=r.swing[1], acc=r.swing[2], weight=on
+            )
+            refs[f"{side}_foot_ori"] = refs[f"{side}_foot_ori"].replace(
+                pos=swing_ori[0], vel=swing_ori[1], acc=swing_ori[2], weight=on
+            )
+        out = wblc(qpos, qvel, refs, r.contact, gains=gains, previous=state.qp, snap=snap)
+        dg = out.diagnostics
+        log = {
+            "com": snap.com,
+            "com_vel": snap.com_vel,
+            "com_ref": r.com[0],
+            "com_error": r.com_error,
+            "contact": r.contact,
+            "stance": g.stance,
+            "phase": g.phase,
+            "step": g.step,
+            "target": g.target,
+            "replans": g.replans,
+            "step_duration": g.step_duration,
+            "apex": g.last_apex,
+            "action": g.last_action,
+            "reason": g.last_reason,
+            "failed_plans": g.failed_plans,
+            "heading": g.heading,
+            "feet": feet,
+            "swing_ref": r.swing[0],
+            "torque_norm": jnp.linalg.norm(out.torques),
+            "relaxed": dg.qp_relaxed,
+            "over_limit": jnp.any(dg.torque_over_limit),
+        }
+        return out.torques, WalkingState(g, out.qp_state), log
+
+
+def make_walking_controller(
+    model: mujoco.MjModel,
+    config: WBLCConfig | None = None,
+    gait: GaitParams | None = None,
+    planner: LearnedPlanner | None = None,
+    keyframe_qpos=None,
+) -> WalkingController:
+    """A walking controller for ``model`` (Valkyrie): WBLC ``config`` (default: the walking
+    hierarchy), gait numbers and the step ``planner`` (default: the shipped RL-PSP policy).
+    ``keyframe_qpos`` sets the joint postures the posture tasks hold (default: the model's
+    ``walk`` keyframe)."""
+    from jaxloco.control.presets import VALKYRIE_FEET
+    from jaxloco.dynamics.model import keyframe_qpos as key_qpos
+
+    config = walking_config() if config is None else config
+    gait = GaitParams() if gait is None else gait
+    planner = load_planner() if planner is None else planner
+    wblc = make_wblc(model, config)
+    qpos0 = key_qpos(model, "walk") if keyframe_qpos is None else np.asarray(keyframe_qpos)
+    posture = wblc.hold_references(jnp.asarray(qpos0))
+    sites = tuple(
+        mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, foot.frame) for foot in VALKYRIE_FEET
+    )
+    return WalkingController(wblc, gait, planner, posture, sites)
