@@ -36,11 +36,13 @@ def run_closed_loop(
     steps: int,
     stop: Callable[[mujoco.MjData], bool] | None = None,
     progress: bool | str = False,
+    perturb: Callable[[mujoco.MjData], None] | None = None,
 ) -> tuple[ClosedLoopLog, object]:
     """Run ``steps`` physics steps with ``ctrl = controller(t, qpos, qvel, carry)``.
 
     ``controller`` (jitted by the caller) returns ``(torques, carry, log)``; ``log`` is a
     dict of arrays recorded every step. ``stop(data)`` ends the run early (a fall).
+    ``perturb(data)`` runs before every physics step (e.g. sets ``xfrc_applied`` for pushes).
     Returns the log and the final carry.
     """
     times, qpos, qvel, ctrl, logs = [], [], [], [], []
@@ -56,6 +58,8 @@ def run_closed_loop(
         qvel.append(data.qvel.copy())
         ctrl.append(data.ctrl.copy())
         logs.append(log)
+        if perturb is not None:
+            perturb(data)
         mujoco.mj_step(model, data)
         if not np.all(np.isfinite(data.qpos)) or (stop is not None and stop(data)):
             fell = True
