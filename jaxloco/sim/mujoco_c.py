@@ -37,12 +37,14 @@ def run_closed_loop(
     stop: Callable[[mujoco.MjData], bool] | None = None,
     progress: bool | str = False,
     perturb: Callable[[mujoco.MjData], None] | None = None,
+    done: Callable[[dict], bool] | None = None,
 ) -> tuple[ClosedLoopLog, object]:
     """Run ``steps`` physics steps with ``ctrl = controller(t, qpos, qvel, carry)``.
 
     ``controller`` (jitted by the caller) returns ``(torques, carry, log)``; ``log`` is a
     dict of arrays recorded every step. ``stop(data)`` ends the run early (a fall).
-    ``perturb(data)`` runs before every physics step (e.g. sets ``xfrc_applied`` for pushes).
+    ``perturb(data)`` runs before every physics step (e.g. sets ``xfrc_applied`` for pushes);
+    ``done(log)`` ends the run (not as a fall) when the controller's log says so.
     Returns the log and the final carry.
     """
     times, qpos, qvel, ctrl, logs = [], [], [], [], []
@@ -63,6 +65,8 @@ def run_closed_loop(
         mujoco.mj_step(model, data)
         if not np.all(np.isfinite(data.qpos)) or (stop is not None and stop(data)):
             fell = True
+            break
+        if done is not None and done(log):
             break
     outputs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *logs) if logs else {}
     return (

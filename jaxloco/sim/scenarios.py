@@ -1,0 +1,106 @@
+"""Walking runs on MuJoCo's C engine with the jitted walking controller: the building block
+of the walking, steering and push-recovery experiments (one robot, full per-tick logs).
+
+For batches of robots use :mod:`jaxloco.sim.mjx_loop` (MJX) with the same controller.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from jaxloco.dynamics.model import keyframe_qpos
+from jaxloco.locomotion.walking import WalkingController
+from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
+from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
+from jaxloco.sim.push import Push, apply_push_c, body_index
+
+
+@dataclasses.dataclass
+class WalkRun:
+    log: ClosedLoopLog
+    pushes: tuple[Push, ...]
+    steps_taken: int
+    fell: bool
+    fall_time: float | None
+
+
+_JIT_CACHE: dict = {}
+
+
+def jitted_step(ctrl: WalkingController):
+    """``jax.jit(ctrl.step)``, one per controller (so repeated runs compile once)."""
+    key = id(ctrl)
+    if key not in _JIT_CACHE:
+        _JIT_CACHE[key] = (ctrl, jax.jit(ctrl.step))
+    return _JIT_CACHE[key][1]
+
+
+def simulate_walk(
+    model: mujoco.MjModel,
+    ctrl: WalkingController,
+    duration: float,
+    turns=None,
+    pushes: tuple[Push, ...] = (),
+    max_steps: int | None = None,
+    physics: PhysicsParams | None = None,
+    fall_height: float = 0.7,
+    progress: bool | str = False,
+) -> WalkRun:
+    """Walk from the ``walk`` keyframe for ``duration`` s (or until ``max_steps`` steps have
+    begun), turning by ``turns`` (rad per step) and pushed by ``pushes``."""
+    if duration <= 0:
+        raise ValueError(f"duration must be > 0; got {duration}")
+    sim_model = physics_model(model, physics) if physics is not None else model
+    data = mujoco.MjData(sim_model)
+    data.qpos[:] = keyframe_qpos(model, "walk")
+    mujoco.mj_forward(sim_model, data)
+    turns = None if turns is None or len(turns) == 0 else np.asarray(turns)
+    state = ctrl.init(jnp.asarray(data.qpos), turns=turns)
+    rows = np.array([p.as_array() for p in pushes]) if pushes else None
+    bodies = {body_index(model, p.body) for p in pushes}
+    if len(bodies) > 1:
+        raise ValueError("simulate_walk: all pushes must act on the same body")
+    body = bodies.pop() if bodies else 0
+
+    def perturb(d):
+        if rows is not None:
+            apply_push_c(sim_model, d, rows, body)
+
+    done = None if max_steps is None else (lambda log: int(log["step"]) > max_steps)
+    log, _ = run_closed_loop(
+        sim_model,
+        data,
+        jitted_step(ctrl),
+        state,
+        int(round(duration / model.opt.timestep)),
+        stop=lambda d: d.qpos[2] < fall_height,
+        progress=progress,
+        perturb=perturb,
+        done=done,
+    )
+    steps = int(log.outputs["step"][-1]) if len(log.time) else 0
+    return WalkRun(log, tuple(pushes), steps, log.fell, float(log.time[-1]) if log.fell else None)
+
+
+def local_com_states(log: ClosedLoopLog) -> np.ndarray:
+    """Per tick, the CoM state ``(x, xd, y, yd)`` relative to the stance foot in the stance
+    frame (x along the step's heading, y mirrored towards the swing side): what Fig. 11b
+    and Fig. 12 plot."""
+    o = log.outputs
+    stance = np.asarray(o["stance"])
+    foot = np.asarray(o["feet"])[np.arange(len(stance)), stance]
+    heading = np.asarray(o["heading"])
+    sign = np.where(stance == 1, 1.0, -1.0)
+    c, s = np.cos(heading), np.sin(heading)
+    rel = np.asarray(o["com"])[:, :2] - foot[:, :2]
+    vel = np.asarray(o["com_vel"])[:, :2]
+    x = c * rel[:, 0] + s * rel[:, 1]
+    y = sign * (-s * rel[:, 0] + c * rel[:, 1])
+    xd = c * vel[:, 0] + s * vel[:, 1]
+    yd = sign * (-s * vel[:, 0] + c * vel[:, 1])
+    return np.stack([x, xd, y, yd], axis=1)
