@@ -64,7 +64,8 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
         "steps_begun": res.steps_taken,
         "steps_commanded": int(total),
         "simulated_s": float(t[-1]),
-        "commanded_heading_change_deg": float(np.rad2deg(np.sum(turns))),
+        "max_commanded_heading_deg": float(np.rad2deg(np.max(np.cumsum(turns)))),
+        "final_commanded_heading_deg": float(np.rad2deg(np.sum(turns))),
         "max_heading_deg": float(np.rad2deg(heading.max())),
         "final_heading_deg": float(np.rad2deg(heading[-1])),
         "distance_m": float(np.sum(np.linalg.norm(np.diff(o["com"][:, :2], axis=0), axis=1))),
@@ -101,7 +102,12 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
     fig.savefig(out_dir / "walk_steer.png", dpi=cfg.dpi)
     if cfg.video:
         render_gif(
-            model, res.log.qpos, out_dir / "walk_steer.gif", t, fps=cfg.video_fps, title="walk-steer"
+            model,
+            res.log.qpos,
+            out_dir / "walk_steer.gif",
+            t,
+            fps=cfg.video_fps,
+            title="walk-steer",
         )
     write_json(out_dir / "walk_steer.json", summary)
     return summary

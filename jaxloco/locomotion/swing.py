@@ -57,8 +57,8 @@ def basis_derivatives(u):
 # At u = 0 only the first three functions (and their derivatives) are non-zero: a lower
 # triangular system gives the first three control points from position, velocity and
 # acceleration. Computed once, in float64, with the same code the spline evaluates.
-_START = np.asarray(jax.jit(basis_derivatives, backend="cpu")(np.float32(0.0)), np.float64)[:, :3]
-_MID = np.asarray(jax.jit(basis, backend="cpu")(np.float32(0.5)), np.float64)
+_START = np.asarray(basis_derivatives(0.0), np.float64)[:, :3]
+_MID = np.asarray(basis(0.5), np.float64)
 
 
 @struct.dataclass

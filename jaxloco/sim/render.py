@@ -42,7 +42,10 @@ def _stick_frames(model, qpos_frames, width, height, times=None, title=""):
     data = mujoco.MjData(model)
     parents = model.body_parentid
     sole_sites = [
-        [mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{side}_foot_contact{k}") for k in (0, 1, 3, 2)]
+        [
+            mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, f"{side}_foot_contact{k}")
+            for k in (0, 1, 3, 2)
+        ]
         for side in ("left", "right")
     ]
     frames = []
@@ -116,9 +119,7 @@ def render_gif(
     if frames is None:
         frames = _stick_frames(model, qpos[keep], width, height, times[keep], title)
     path = Path(path)
-    frames[0].save(
-        path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0
-    )
+    frames[0].save(path, save_all=True, append_images=frames[1:], duration=int(1000 / fps), loop=0)
     return path
 
 
@@ -127,7 +128,9 @@ def plot_top_view(ax, com_xy, feet_xy=None, footsteps=None, stance=None, label="
     ax.plot(com_xy[:, 0], com_xy[:, 1], label=label, **kw)
     if footsteps is not None and len(footsteps):
         footsteps = np.asarray(footsteps)
-        colors = None if stance is None else np.where(np.asarray(stance) == 0, "tab:green", "tab:red")
+        colors = (
+            None if stance is None else np.where(np.asarray(stance) == 0, "tab:green", "tab:red")
+        )
         ax.scatter(footsteps[:, 0], footsteps[:, 1], marker="s", s=25, c=colors, zorder=3)
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
