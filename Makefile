@@ -22,7 +22,8 @@ $(STAMP): pyproject.toml constraints.txt
 
 # The main job on embedded defaults; outputs land in hydra's run directory under outputs/.
 run: $(STAMP)
-	$(BIN)/jaxloco phase-portrait
+	$(BIN)/jaxloco walk-steer 'segments=[[6,10.0],[4,0.0]]' extra_steps=1 \
+	  'pushes=[{magnitude:250,direction_deg:90,start:5.0,duration:0.1}]'
 
 # The CI suite: everything except full-size end-to-end runs (their small versions run here).
 test: $(STAMP)

@@ -9,6 +9,7 @@ Writes ``walk_steer.png`` (top view of the path and footsteps; CoM states mapped
 local frames), ``walk_steer.json`` and ``walk_steer.gif``.
 """
 
+import dataclasses
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -24,6 +25,7 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import turn_schedule
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
 from jaxloco.sim.scenarios import local_com_states, simulate_walk
 
@@ -34,6 +36,9 @@ log = logging.getLogger(__name__)
 class WalkSteerConfig:
     segments: list = field(default_factory=lambda: [[12, 18.8], [5, 0.0], [12, -18.8]])
     """[[number of steps, degrees per step], ...] (Fig. 11)."""
+    pushes: list[Push] = field(default_factory=list)
+    """Pushes on the pelvis during the walk, e.g.
+    ``'pushes=[{magnitude:250,direction_deg:90,start:4.2,duration:0.1}]'``."""
     extra_steps: int = 2
     """Straight steps after the schedule before the run ends."""
     max_duration: float = 40.0
@@ -54,7 +59,13 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
     total = len(turns) + cfg.extra_steps
     with watchdog(cfg.timeout_s, "walk-steer"):
         res = simulate_walk(
-            model, ctrl, cfg.max_duration, turns=turns, max_steps=total, progress="walk-steer"
+            model,
+            ctrl,
+            cfg.max_duration,
+            turns=turns,
+            pushes=tuple(cfg.pushes),
+            max_steps=total,
+            progress="walk-steer",
         )
     o, t = res.log.outputs, res.log.time
     heading = np.asarray(o["heading"])
@@ -74,6 +85,7 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
         "failed_plans": int(o["failed_plans"][-1]),
         "qp_relaxed_ticks": int(np.sum(o["relaxed"])),
     }
+    summary["pushes"] = [dataclasses.asdict(p) for p in cfg.pushes]
     summary["completed"] = (not res.fell) and res.steps_taken >= total
     log.info("walk-steer: %s", {k: v for k, v in summary.items() if k != "config"})
 
@@ -82,6 +94,19 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
     _, side, steps = stance_footsteps(t, o["stance"], o["feet"])
     plot_top_view(ax_top, o["com"][:, :2], footsteps=steps, stance=side, lw=1.2)
     ax_top.plot(o["com_ref"][:, 0], o["com_ref"][:, 1], "k--", lw=0.6, label="CoM reference")
+    for push in cfg.pushes:
+        k = int(np.argmax(t >= push.start))
+        if t[-1] >= push.start:
+            u = np.array(
+                [np.cos(np.radians(push.direction_deg)), np.sin(np.radians(push.direction_deg))]
+            )
+            ax_top.annotate(
+                f"{push.magnitude:.0f} N",
+                xy=o["com"][k, :2],
+                xytext=o["com"][k, :2] - 0.3 * u,
+                arrowprops={"arrowstyle": "->", "color": "k"},
+                fontsize=8,
+            )
     ax_top.legend(fontsize=8)
     ax_top.set_title("(a) top view: CoM path and footholds (green left, red right)")
     local = local_com_states(res.log)

@@ -1,6 +1,8 @@
 """Locomotion: swing splines, quaternion slerp, the gait's references, walking and pushes
 on MuJoCo, and MJX against MuJoCo's C engine."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -210,3 +212,55 @@ def test_mjx_and_mujoco_c_agree_through_liftoff(walker):
     assert np.abs(np.asarray(logs["com"]) - c_com).max() < 1e-3
     assert np.abs(np.asarray(logs["feet"]) - c_feet).max() < 5e-3
     assert int(logs["phase"][-1]) == gait_lib.WALK
+
+
+# --- experiments, CI-sized ---------------------------------------------------------------
+
+
+def test_walk_steer_experiment_ci_sized(tmp_path):
+    from cli_helpers import run_cli
+
+    proc = run_cli(
+        [
+            "walk-steer",
+            "segments=[[2,10.0]]",
+            "extra_steps=0",
+            "video_fps=4",
+            "pushes=[{magnitude:150,direction_deg:90,start:1.8,duration:0.1}]",
+        ],
+        tmp_path,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    summary = json.loads((run / "walk_steer.json").read_text())
+    assert summary["completed"] and not summary["fell"]
+    assert summary["final_heading_deg"] == pytest.approx(20.0, abs=1e-3)
+    assert (run / "walk_steer.png").stat().st_size > 10_000
+    assert (run / "walk_steer.gif").stat().st_size > 10_000
+
+
+def test_push_recovery_experiment_ci_sized(tmp_path):
+    from cli_helpers import run_cli
+
+    proc = run_cli(
+        [
+            "push-recovery",
+            "directions_deg=[90]",
+            "magnitude=150",
+            "push_time=1.8",
+            "duration=3.2",
+            "steps_after=2",
+            "videos=false",
+        ],
+        tmp_path,
+        timeout=900,
+    )
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    summary = json.loads((run / "push_recovery.json").read_text())
+    assert set(summary["results"]) == {"replan", "no_replan"}
+    assert summary["results"]["replan"]["90"]["recovered"]
+    assert summary["replanning_15_steps"]["median_ms"] > 0
+    assert "| replan | 90 |" in (run / "push_recovery.md").read_text()
+    assert (run / "push_recovery.png").exists()
