@@ -249,7 +249,7 @@ def test_push_recovery_experiment_ci_sized(tmp_path):
             "directions_deg=[90]",
             "magnitude=150",
             "push_time=1.8",
-            "duration=3.2",
+            "duration=4.2",
             "steps_after=2",
             "videos=false",
         ],
