@@ -240,6 +240,7 @@ def test_walk_steer_experiment_ci_sized(tmp_path):
     assert (run / "walk_steer.gif").stat().st_size > 10_000
 
 
+@pytest.mark.slow  # 2.6 min (three runs, two controllers); the walk+push test covers CI
 def test_push_recovery_experiment_ci_sized(tmp_path):
     from cli_helpers import run_cli
 
