@@ -69,6 +69,12 @@ class WBLCConfig:
     com_task: str = "com"
     cam_task: str = "cam"
     force_qp: force_qp.ForceQPParams = force_qp.ForceQPParams()
+    com_acc_limit: float = float("inf")
+    """Bound on the horizontal norm of the CoM task's commanded acceleration (m/s^2).
+    The CoM's linear behaviour is a hard equality of the force QP, so a command beyond
+    what friction gives (a push's velocity error times Kd) makes the QP relax the cone
+    to ``mu_relaxed`` (1.75) and the feet slip on a floor of lower friction; bounding
+    the command keeps the forces inside the cone (``inf``: off, the paper's WBLC)."""
     pinv_rtol: float = 1e-8
     """Eigenvalues of ``J A^-1 J'`` below this fraction of the largest count as zero."""
     torque_pinv_rtol: float = 1e-8
@@ -87,6 +93,10 @@ class WBLCConfig:
                         f"WBLCConfig.hierarchy: unknown task {name!r} in level {level!r}; "
                         f"tasks are {names}"
                     )
+        if not self.com_acc_limit > 0:
+            raise ValueError(
+                f"WBLCConfig.com_acc_limit must be > 0 (inf: off); got {self.com_acc_limit}"
+            )
         for field in ("com_task", "cam_task"):
             if getattr(self, field) not in names:
                 raise ValueError(f"WBLCConfig.{field}: {getattr(self, field)!r} is not a task")
@@ -243,6 +253,13 @@ def wblc_tick(
         if t.kind == "contact":  # the contact set decides, not the reference
             ref = ref.replace(weight=(contact[foot_frames.index(t.frame)] > 0).astype(dtype))
         terms[t.name] = task_terms(mx, t, ctrl.indices[t.name], snap, ref, gains[t.name])
+
+    if cfg.com_acc_limit < float("inf"):
+        com = terms[cfg.com_task]
+        horizontal = com.desired[:2]
+        norm = jnp.linalg.norm(horizontal)
+        scale = jnp.minimum(1.0, cfg.com_acc_limit / jnp.maximum(norm, 1e-9))
+        terms[cfg.com_task] = com.replace(desired=com.desired.at[:2].set(horizontal * scale))
 
     # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft.
     qp = cfg.force_qp

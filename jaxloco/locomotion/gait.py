@@ -27,8 +27,9 @@ planned again from ``x_new = gamma x_d + (1 - gamma) x`` (position and velocity)
 reference restarts there, and the swing foot moves from its current desired position,
 velocity and acceleration to the new footstep (no jump).
 
-Plans that have no solution (``INFEASIBLE`` reasons) fall back to a nominal step and are
-counted in ``GaitState.failed_plans``; step durations are clipped to
+Plans that have no solution (``INFEASIBLE`` reasons) fall back to a capture step
+(:func:`capture_step`) and are counted in ``GaitState.failed_plans``; footsteps are
+clipped to ``step_x_range`` x ``step_y_range`` and step durations to
 ``[min_step_duration, max_step_duration]``.
 """
 
@@ -75,9 +76,17 @@ class GaitParams:
     min_step_duration: float = 0.25
     max_step_duration: float = 2.0
     """Clip of a step's duration, touch-down to touch-down (s)."""
-    fallback_step: tuple[float, float] = (0.2, 0.3)
-    """(p_x, p_y) used when the planner has no solution (m, local frame)."""
     fallback_duration: float = 0.45
+    """Time to touch-down of a fallback step (s): see ``fallback_dcm_offset``."""
+    fallback_dcm_offset: tuple[float, float] = (0.05, 0.05)
+    """When the PSP has no solution (e.g. a push leaves the CoM no forward apex), the foot
+    goes to the LIPM capture point predicted at touch-down, ``x + xd / omega``, moved back
+    by ``b_x`` and outwards by ``b_y`` (m, local frame), so that the CoM then diverges
+    forward and back towards the old stance side, and walking resumes at the next plan."""
+    step_x_range: tuple[float, float] = (-0.45, 0.65)
+    step_y_range: tuple[float, float] = (0.12, 0.6)
+    """Kinematic limits of a footstep in the stance frame (m): every planned or fallback
+    step is clipped to them (``y`` > 0 keeps the legs from crossing)."""
     replan: bool = True
     replan_threshold: float = 0.05
     """Eq. 33's error norm that triggers replanning."""
@@ -87,6 +96,11 @@ class GaitParams:
     """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state. The paper
     uses 0.8; on our model a 520 N forward push mid-stance fell at 0.8 (21 replans, 4
     failed plans) and at 0.2, and was recovered at 0.5 (2 replans), so 0.5 is the default."""
+    max_apex_speed: float = 1.0
+    """Cap on the next apex velocity the step policy asks for (m/s): sets the walking speed
+    below the policy's own (the shipped policy asks for 0.37, the top of its action box).
+    Per robot it is data (``init_gait(apex_speed=...)``), so one compiled controller
+    serves several speeds."""
     replan_min_remaining: float = 0.08
     """No replanning this close to the planned touch-down (s): the foot is landing."""
 
@@ -109,6 +123,19 @@ class GaitParams:
                 self.min_step_duration <= self.fallback_duration <= self.max_step_duration,
                 "in [min_step_duration, max_step_duration]",
             ),
+            "fallback_dcm_offset": (
+                all(0 <= b < 0.3 for b in self.fallback_dcm_offset),
+                "two numbers in [0, 0.3)",
+            ),
+            "step_x_range": (
+                self.step_x_range[0] < 0 < self.step_x_range[1],
+                "(low < 0 < high): stepping back and forth must both be possible",
+            ),
+            "step_y_range": (
+                0 < self.step_y_range[0] < self.step_y_range[1],
+                "(0 < low < high)",
+            ),
+            "max_apex_speed": (self.max_apex_speed > 0, "> 0"),
             "replan_threshold": (self.replan_threshold > 0, "> 0"),
             "replan_delay": (self.replan_delay >= 0, ">= 0"),
             "replan_gamma": (0 <= self.replan_gamma <= 1, "in [0, 1]"),
@@ -157,6 +184,11 @@ class GaitState:
     turns: jax.Array
     """(N,) heading change per step (rad); after the last, straight on."""
     error_time: jax.Array
+    replan_on: jax.Array
+    """Whether Eq. 33-34 replanning is on for this robot (data, so that one compiled
+    controller serves a batch with replanning on for some robots and off for others)."""
+    apex_speed_cap: jax.Array
+    """The policy's next-apex velocity is clipped to this (m/s)."""
     replans: jax.Array
     failed_plans: jax.Array
     last_apex: jax.Array
@@ -246,10 +278,13 @@ def init_gait(
     heading=0.0,
     turns=None,
     num_turns: int = 1,
+    replan=None,
+    apex_speed=None,
 ) -> GaitState:
     """The gait at rest in double support (phase START), for a CoM at ``com`` (3,) and the
     feet's contact frames at ``feet_pos`` (2, 3) (left, right); ``heading`` is the walking
-    direction (rad), ``turns`` the per-step heading changes."""
+    direction (rad), ``turns`` the per-step heading changes; ``replan`` and
+    ``apex_speed`` override ``params.replan`` and ``params.max_apex_speed`` for this robot."""
     com = jnp.asarray(com)
     dtype = com.dtype
     feet_pos = jnp.asarray(feet_pos, dtype)
@@ -284,6 +319,10 @@ def init_gait(
         swing_yaw0=heading,
         turns=turns,
         error_time=zero,
+        replan_on=jnp.asarray(params.replan if replan is None else replan, bool),
+        apex_speed_cap=jnp.asarray(
+            params.max_apex_speed if apex_speed is None else apex_speed, dtype
+        ),
         replans=jnp.asarray(0, jnp.int32),
         failed_plans=jnp.asarray(0, jnp.int32),
         last_apex=zero3,
@@ -317,12 +356,33 @@ def com_reference(state: GaitState, params: GaitParams, psp: PSPParams, t):
     return pos, vel, acc
 
 
+def capture_step(params: GaitParams, w, rel, vel, remaining):
+    """The fallback footstep (local frame) for a CoM at ``rel``/``vel`` (local, (2,)) that
+    lands in ``remaining`` s: the predicted capture point shifted by
+    ``fallback_dcm_offset`` (see :class:`GaitParams`)."""
+    pos, v = lipm.propagate(rel, vel, 0.0, w, remaining)
+    capture = pos + v / w
+    bx, by = params.fallback_dcm_offset
+    return capture + jnp.asarray([-bx, by], rel.dtype)
+
+
 def _plan(
-    params: GaitParams, psp: PSPParams, policy: Policy, com_pos, com_vel, stance_pos, heading, sign
+    params: GaitParams,
+    psp: PSPParams,
+    policy: Policy,
+    com_pos,
+    com_vel,
+    stance_pos,
+    heading,
+    sign,
+    fallback_remaining,
+    apex_speed_cap,
 ):
     """Plan the step from a horizontal CoM state in the stance frame.
 
     Returns (time from now to touch-down, footstep world xy, apex, action, reason, failed).
+    A plan the PSP cannot make lands a capture step (:func:`capture_step`) in
+    ``fallback_remaining`` s.
     """
     w = psp.omega
     rel = world_to_local(com_pos - stance_pos[:2], heading, sign)
@@ -331,11 +391,19 @@ def _plan(
     y_apex, yd_apex = lipm.propagate_by_growth(rel[1], vel[1], 0.0, w, growth)
     apex = jnp.stack([y_apex, v_apex, yd_apex])
     action = policy(apex)
+    action = action.at[1].min(apex_speed_cap)
     plan = plan_apex_components(y_apex, v_apex, yd_apex, action, psp)
     failed = (~apex_ok) | ((plan.reason & int(INFEASIBLE)) != 0)
-    duration = jnp.where(failed, params.fallback_duration, tau + plan.t_switch)
+    duration = jnp.where(failed, fallback_remaining, tau + plan.t_switch)
     step = jnp.where(
-        failed, jnp.asarray(params.fallback_step, rel.dtype), jnp.stack([plan.p_x, plan.p_y])
+        failed,
+        capture_step(params, w, rel, vel, fallback_remaining),
+        jnp.stack([plan.p_x, plan.p_y]),
+    )
+    step = jnp.clip(
+        step,
+        jnp.asarray([params.step_x_range[0], params.step_y_range[0]], rel.dtype),
+        jnp.asarray([params.step_x_range[1], params.step_y_range[1]], rel.dtype),
     )
     foot_xy = stance_pos[:2] + local_to_world(step, heading, sign)
     reason = plan.reason | jnp.where(apex_ok, 0, 512).astype(jnp.int32)
@@ -350,7 +418,16 @@ def _begin_step(
     sign = _lateral_sign(stance).astype(dtype)
     com_pos, com_vel, _ = com_reference(state, params, psp, t)
     duration, foot_xy, apex, action, reason, failed = _plan(
-        params, psp, policy, com_pos[:2], com_vel[:2], stance_pos, heading, sign
+        params,
+        psp,
+        policy,
+        com_pos[:2],
+        com_vel[:2],
+        stance_pos,
+        heading,
+        sign,
+        jnp.asarray(params.fallback_duration, dtype),
+        state.apex_speed_cap,
     )
     duration = jnp.clip(duration, params.min_step_duration, params.max_step_duration)
     target = jnp.append(foot_xy, stance_pos[2])
@@ -398,10 +475,19 @@ def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
     ref_pos, ref_vel, _ = com_reference(state, params, psp, t)
     new_pos = g * ref_pos[:2] + (1 - g) * com[:2]
     new_vel = g * ref_vel[:2] + (1 - g) * com_vel[:2]
-    duration, foot_xy, apex, action, reason, failed = _plan(
-        params, psp, policy, new_pos, new_vel, state.stance_pos, state.heading, state.lateral_sign
-    )
     elapsed = t - state.step_start
+    duration, foot_xy, apex, action, reason, failed = _plan(
+        params,
+        psp,
+        policy,
+        new_pos,
+        new_vel,
+        state.stance_pos,
+        state.heading,
+        state.lateral_sign,
+        jnp.clip(params.fallback_duration - elapsed, params.replan_min_remaining + 0.1, None),
+        state.apex_speed_cap,
+    )
     remaining = jnp.clip(duration, params.replan_min_remaining, params.max_step_duration)
     target = jnp.append(foot_xy, state.stance_pos[2])
     pos, vel, acc = state.swing.evaluate(t)
@@ -496,12 +582,10 @@ def advance(
     over = swinging & (err > params.replan_threshold) & (remaining > params.replan_min_remaining)
     error_time = jnp.where(over, state.error_time + dt, 0.0)
     state = state.replace(error_time=error_time)
-    if params.replan:
-        trigger = over & (error_time > params.replan_delay)
-        state = jax.lax.cond(
-            trigger, lambda s: _replan(s, params, psp, policy, t, com, com_vel), lambda s: s, state
-        )
-    return state
+    trigger = over & (error_time > params.replan_delay) & state.replan_on
+    return jax.lax.cond(
+        trigger, lambda s: _replan(s, params, psp, policy, t, com, com_vel), lambda s: s, state
+    )
 
 
 def references(

@@ -46,14 +46,33 @@ class WalkingController:
     def psp(self):
         return self.planner.psp
 
-    def init(self, qpos, qvel=None, heading=0.0, turns=None, num_turns: int = 1) -> WalkingState:
-        """The controller's state for a robot standing at ``qpos``."""
+    def init(
+        self,
+        qpos,
+        qvel=None,
+        heading=0.0,
+        turns=None,
+        num_turns: int = 1,
+        replan=None,
+        apex_speed=None,
+    ) -> WalkingState:
+        """The controller's state for a robot standing at ``qpos`` (``replan``,
+        ``apex_speed``: override ``GaitParams.replan`` and ``.max_apex_speed`` for this
+        robot)."""
         qpos = jnp.asarray(qpos)
         qvel = jnp.zeros(self.wblc.mx.nv, qpos.dtype) if qvel is None else jnp.asarray(qvel)
         snap = self.wblc.snapshot(qpos, qvel)
         feet = snap.data.site_xpos[jnp.asarray(self.foot_sites)]
         g = gait_lib.init_gait(
-            self.gait_params, self.psp, snap.com, feet, heading, turns, num_turns
+            self.gait_params,
+            self.psp,
+            snap.com,
+            feet,
+            heading,
+            turns,
+            num_turns,
+            replan,
+            apex_speed,
         )
         return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
 

@@ -1,0 +1,187 @@
+"""Closed-loop simulation speed: physics + WBLC + gait + learned planner, per env-step.
+
+    python benchmarks/bench_closed_loop.py [--json PATH] [--quick]
+
+For one robot and batches of 64 and 256 (``--quick``: 1 and 8), on both physics backends
+the sweeps use, each against physics alone in the same run:
+
+- **MJX**: ``jit(vmap(lax.scan(closed_loop_step)))`` (:mod:`jaxloco.sim.mjx_loop`), against
+  ``jit(vmap(lax.scan(mjx.step)))`` with zero torques;
+- **C**: the sweep's C backend (:class:`jaxloco.sweep.backends.CBatchBackend`, MuJoCo's
+  ``mujoco.batch`` thread pool with the controller jitted and vmapped in JAX, one call a
+  tick), against ``mj_step`` (one robot) or ``Batch.step`` (batches) alone.
+
+Both at the sweep's physics settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`). Runs
+start mid-walk (a snapshot of the undisturbed walk during single support), so the gait,
+planner and swing are live. Compile time is reported apart (AOT ``lower().compile()`` for
+MJX; the first tick for C). Real-time factor = simulated seconds per wall-clock second.
+Under ``vmap`` both branches of the gait's conds run every tick (planning included), so
+a batched tick costs more per robot than the single robot's.
+"""
+
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from _common import compile_seconds, parse_args, print_table, write_json  # noqa: E402
+from mujoco import batch as mj_batch  # noqa: E402
+from mujoco import mjx  # noqa: E402
+
+from jaxloco.dynamics.model import load_valkyrie  # noqa: E402
+from jaxloco.locomotion import make_walking_controller  # noqa: E402
+from jaxloco.runtime import enable_compilation_cache, watchdog  # noqa: E402
+from jaxloco.sim.mjx_loop import PhysicsParams, physics_model  # noqa: E402
+from jaxloco.sim.push import body_index  # noqa: E402
+from jaxloco.sweep.backends import (  # noqa: E402
+    CBatchBackend,
+    ChunkStarts,
+    MJXBackend,
+    mjx_loop_states,
+)
+from jaxloco.sweep.outcome import init_outcome  # noqa: E402
+from jaxloco.sweep.starts import snapshot_walk  # noqa: E402
+
+
+def starts_for(snap, n):
+    """``n`` copies of the walk snapshot, no pushes."""
+    return ChunkStarts(
+        np.repeat(snap.times, n),
+        np.repeat(snap.physics, n, axis=0),
+        jax.tree.map(lambda x: np.repeat(x, n, axis=0), snap.controller),
+        np.zeros((n, 4)),
+    )
+
+
+def bench_mjx(sim_model, ctrl, body, starts, steps):
+    backend = MJXBackend(sim_model, ctrl, body, 0.7, steps)
+    state = mjx_loop_states(sim_model, starts)
+    outcome = jax.vmap(init_outcome)(state.controller)
+    pushes = jnp.asarray(starts.pushes, state.data.qpos.dtype)
+    compile_s, compiled = compile_seconds(backend._run, state, outcome, pushes)
+    t0 = time.perf_counter()
+    out = jax.block_until_ready(compiled(state, outcome, pushes))
+    wall = time.perf_counter() - t0
+    return compile_s, wall, int(np.asarray(out.fell).sum())
+
+
+def bench_mjx_physics(mx, data, steps):
+    def roll(d):
+        return jax.lax.scan(lambda d, _: (mjx.step(mx, d), None), d, None, steps)[0]
+
+    fn = jax.jit(jax.vmap(roll))
+    compile_s, compiled = compile_seconds(fn, data)
+    t0 = time.perf_counter()
+    jax.block_until_ready(compiled(data))
+    return compile_s, time.perf_counter() - t0
+
+
+def bench_c(sim_model, ctrl, body, starts, steps):
+    backend = CBatchBackend(sim_model, ctrl, body, 0.7)
+    t0 = time.perf_counter()
+    backend.run(starts, 1)  # compiles the vmapped controller tick
+    compile_s = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    out = backend.run(starts, steps)
+    return compile_s, time.perf_counter() - t0, int(np.asarray(out.fell).sum())
+
+
+def bench_c_physics(sim_model, starts, steps):
+    n = len(starts.times)
+    if n == 1:
+        d = mujoco.MjData(sim_model)
+        mujoco.mj_setState(sim_model, d, starts.physics[0], mujoco.mjtState.mjSTATE_INTEGRATION)
+        t0 = time.perf_counter()
+        for _ in range(steps):
+            mujoco.mj_step(sim_model, d)
+        return time.perf_counter() - t0
+    batch = mj_batch.Batch(sim_model, n)
+    batch.state[:] = starts.physics
+    t0 = time.perf_counter()
+    for _ in range(steps):
+        batch.step()
+    return time.perf_counter() - t0
+
+
+def main() -> None:
+    args = parse_args(__doc__.splitlines()[0])
+    enable_compilation_cache()
+    sizes = [1, 8] if args.quick else [1, 64, 256]
+    steps = 50 if args.quick else 200
+    with watchdog(args.timeout, "bench_closed_loop"):
+        model = load_valkyrie()
+        sim_model = physics_model(model, PhysicsParams())
+        ctrl = make_walking_controller(model)
+        body = body_index(model, "pelvis")
+        t0 = time.perf_counter()
+        snap = snapshot_walk(sim_model, ctrl, jax.jit(ctrl.step), 1.0, 0.0, True, 3, [0.5])
+        walk_s = time.perf_counter() - t0
+        dt = model.opt.timestep
+        rows = []
+        for n in sizes:
+            starts = starts_for(snap, n)
+            env_steps = n * steps
+            c_compile, c_wall, c_fell = bench_c(sim_model, ctrl, body, starts, steps)
+            c_phys = bench_c_physics(sim_model, starts, steps)
+            m_compile, m_wall, m_fell = bench_mjx(sim_model, ctrl, body, starts, steps)
+            mx = mjx.put_model(sim_model)
+            data = mjx_loop_states(sim_model, starts).data  # the closed loop's start states
+            p_compile, p_wall = bench_mjx_physics(mx, data, steps)
+            for backend, compile_s, wall, phys_wall, phys_compile, fell in (
+                ("c", c_compile, c_wall, c_phys, 0.0, c_fell),
+                ("mjx", m_compile, m_wall, p_wall, p_compile, m_fell),
+            ):
+                rows.append(
+                    {
+                        "backend": backend,
+                        "robots": n,
+                        "ticks": steps,
+                        "compile_s": compile_s,
+                        "env_steps_per_s": env_steps / wall,
+                        "physics_env_steps_per_s": env_steps / phys_wall,
+                        "physics_compile_s": phys_compile,
+                        "closed_loop_over_physics": wall / phys_wall,
+                        "real_time_factor": steps * dt / wall if n == 1 else None,
+                        "fell": fell,
+                    }
+                )
+                print(rows[-1], flush=True)
+        by = {(r["backend"], r["robots"]): r for r in rows}
+        for n in sizes:
+            by["mjx", n]["mjx_over_c"] = (
+                by["c", n]["env_steps_per_s"] / by["mjx", n]["env_steps_per_s"]
+            )
+    print_table(
+        f"Closed loop (physics + WBLC + gait + planner), {steps} ticks at 1 kHz, Valkyrie "
+        f"(nv = {model.nv}); baseline = physics alone in the same run",
+        rows,
+        [
+            ("backend", "backend", "s"),
+            ("robots", "robots", "d"),
+            ("compile_s", "compile (s)", ".1f"),
+            ("env_steps_per_s", "closed loop env-steps/s", ".0f"),
+            ("physics_env_steps_per_s", "physics alone env-steps/s", ".0f"),
+            ("closed_loop_over_physics", "closed loop / physics time", ".1f"),
+            ("real_time_factor", "real-time factor", ".3f"),
+            ("mjx_over_c", "C speed / MJX speed", ".2f"),
+            ("fell", "fell", "d"),
+        ],
+    )
+    write_json(
+        args.json,
+        "closed_loop",
+        {"rows": rows, "ticks": steps, "undisturbed_walk_s": walk_s, "quick": args.quick},
+    )
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,196 @@
+"""Physics backends of a sweep: a chunk of pushed runs, one vmapped controller call a tick.
+
+- :class:`MJXBackend`: the whole chunk is one jitted, vmapped ``lax.scan`` of the MJX
+  closed loop (:func:`jaxloco.sim.mjx_loop.closed_loop_step`); with several JAX devices
+  the chunk is sharded across them along the batch axis (``jax.sharding``). The path to
+  accelerators and to gradients.
+- :class:`CBatchBackend`: MuJoCo's C engine for the chunk (``mujoco.batch.Batch``, a
+  thread pool over the simulations), with the same walking controller jitted and vmapped
+  over the chunk, called once per tick from Python. Compiles only the controller.
+
+Both take start states from :mod:`.starts` and return one :class:`~.outcome.Outcome` per
+run; a fallen robot is frozen from its fall on (MJX: its state stops changing; C: it is no
+longer stepped).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+from mujoco import batch as mj_batch
+from mujoco import mjx
+
+from jaxloco.locomotion.walking import WalkingController
+from jaxloco.sim.mjx_loop import LoopState, closed_loop_step
+from jaxloco.sim.push import push_force
+from jaxloco.sweep.outcome import Outcome, init_outcome, mark_fallen, update_outcome
+from jaxloco.sweep.starts import STATE_SPEC
+
+
+@dataclasses.dataclass
+class ChunkStarts:
+    """Start states of a chunk's runs (leading axis: runs)."""
+
+    times: np.ndarray
+    physics: np.ndarray
+    """``mjSTATE_INTEGRATION`` rows."""
+    controller: object
+    pushes: np.ndarray
+    """(B, 4) push rows ``(magnitude, direction_rad, start, duration)``."""
+
+
+def mjx_loop_states(sim_model: mujoco.MjModel, starts: ChunkStarts) -> LoopState:
+    """MJX closed-loop states (leading axis: runs) from a chunk's start states."""
+    m, d = sim_model, mujoco.MjData(sim_model)
+    datas = []
+    for row in starts.physics:
+        mujoco.mj_setState(m, d, row, STATE_SPEC)
+        mujoco.mj_forward(m, d)
+        datas.append(mjx.put_data(m, d))
+    data = jax.tree.map(lambda *xs: jnp.stack(xs), *datas)
+    n = len(starts.times)
+    return LoopState(
+        data,
+        jax.tree.map(jnp.asarray, starts.controller),
+        jnp.zeros(n, bool),
+        jnp.full(n, jnp.inf, data.qpos.dtype),
+    )
+
+
+class CBatchBackend:
+    """MuJoCo C engine for a batch of robots; the controller jitted and vmapped in JAX."""
+
+    name = "c"
+
+    def __init__(
+        self,
+        sim_model: mujoco.MjModel,
+        ctrl: WalkingController,
+        push_body: int,
+        fall_height: float,
+        nthread: int | None = None,
+    ):
+        self.model = sim_model
+        self.push_body = push_body
+        self.fall_height = fall_height
+        self.nthread = nthread or os.cpu_count() or 1
+
+        def tick(t, qpos, qvel, cstate, outcome, push, alive):
+            torques, new_cstate, log = ctrl.step(t, qpos, qvel, cstate)
+            outcome = update_outcome(outcome, log, alive)
+            cstate = jax.tree.map(lambda a, b: jnp.where(alive, b, a), cstate, new_cstate)
+            return torques, push_force(push, t), cstate, outcome
+
+        self._tick = jax.jit(jax.vmap(tick))
+
+    def run(self, starts: ChunkStarts, horizon_steps: int, progress=None) -> Outcome:
+        m = self.model
+        n = len(starts.times)
+        batch = mj_batch.Batch(m, n, nthread=self.nthread)
+        if batch.nstate != starts.physics.shape[1]:
+            raise ValueError("start states do not match the model's mjSTATE_INTEGRATION size")
+        batch.state[:] = starts.physics
+        qpos, qvel, time = batch.bind("qpos"), batch.bind("qvel"), batch.bind("time")
+        ctrl, xfrc = batch.bind("ctrl"), batch.bind("xfrc_applied")
+        cstate = jax.tree.map(jnp.asarray, starts.controller)
+        outcome = jax.vmap(init_outcome)(cstate)
+        pushes = jnp.asarray(starts.pushes)
+        t0 = starts.times.copy()
+        alive = np.ones(n, bool)
+        fall_time = np.full(n, np.inf)
+        for _ in range(horizon_steps):
+            torques, force, cstate, outcome = self._tick(
+                jnp.asarray(time), jnp.asarray(qpos), jnp.asarray(qvel), cstate, outcome,
+                pushes, jnp.asarray(alive),
+            )  # fmt: skip
+            ids = np.flatnonzero(alive)
+            if ids.size == 0:
+                break
+            ctrl[:] = np.asarray(torques)
+            xfrc[:, self.push_body, :3] = np.asarray(force)
+            before = time.copy()
+            batch.step(ids)
+            fell = alive & (~np.all(np.isfinite(qpos), axis=1) | (qpos[:, 2] < self.fall_height))
+            fall_time[fell] = before[fell] - t0[fell]
+            alive &= ~fell
+            if progress is not None:
+                progress(n)
+        fell = ~alive
+        return outcome.replace(
+            fell=jnp.asarray(fell),
+            fall_time=jnp.asarray(np.where(fell, fall_time, np.inf), outcome.fall_time.dtype),
+        )
+
+
+class MJXBackend:
+    """The chunk as one jitted, vmapped MJX rollout (sharded over devices when several)."""
+
+    name = "mjx"
+
+    def __init__(
+        self,
+        sim_model: mujoco.MjModel,
+        ctrl: WalkingController,
+        push_body: int,
+        fall_height: float,
+        horizon_steps: int,
+        devices=None,
+    ):
+        self.model = sim_model
+        self.mx = mjx.put_model(sim_model)
+        self.devices = list(devices) if devices is not None else jax.devices()
+        self.horizon_steps = horizon_steps
+        mx = self.mx
+
+        def one(state: LoopState, outcome: Outcome, push):
+            t0 = state.data.time
+
+            def tick(carry, _):
+                s, o = carry
+                alive = ~s.fell
+                s, log = closed_loop_step(mx, ctrl.step, s, push[None], push_body, fall_height)
+                o = update_outcome(o, log, alive)
+                o = mark_fallen(o, s.fell, s.fall_time - t0)
+                return (s, o), None
+
+            (state, outcome), _ = jax.lax.scan(tick, (state, outcome), None, horizon_steps)
+            return outcome
+
+        batched = jax.vmap(one)
+        if len(self.devices) > 1:
+            mesh = Mesh(np.asarray(self.devices), ("batch",))
+            self.sharding = NamedSharding(mesh, PartitionSpec("batch"))
+            self._run = jax.jit(batched, out_shardings=self.sharding)
+        else:
+            self.sharding = None
+            self._run = jax.jit(batched)
+
+    @property
+    def batch_multiple(self) -> int:
+        """Chunk sizes must be a multiple of this (the number of devices)."""
+        return len(self.devices)
+
+    def run(self, starts: ChunkStarts, horizon_steps: int, progress=None) -> Outcome:
+        if horizon_steps != self.horizon_steps:
+            raise ValueError(
+                f"MJXBackend compiled for {self.horizon_steps} steps, asked for {horizon_steps}"
+            )
+        n = len(starts.times)
+        if n % self.batch_multiple:
+            raise ValueError(f"chunk of {n} runs is not a multiple of {self.batch_multiple}")
+        state = mjx_loop_states(self.model, starts)
+        outcome = jax.vmap(init_outcome)(state.controller)
+        pushes = jnp.asarray(starts.pushes, state.data.qpos.dtype)
+        args = (state, outcome, pushes)
+        if self.sharding is not None:
+            args = jax.device_put(args, self.sharding)
+        out = jax.block_until_ready(self._run(*args))
+        if progress is not None:
+            progress(n * horizon_steps)
+        return out

@@ -1,0 +1,201 @@
+"""Run a push sweep: expand the spec, snapshot the undisturbed walks, run chunk by chunk.
+
+:func:`run_sweep` is what ``jaxloco push-sweep`` calls. Each chunk of ``chunk_size`` pushes
+is one batched backend call (the last chunk is padded with copies of its last push, so every
+call has the same shape and compiles once); its outcomes are written before the next chunk
+starts (:mod:`.store`), and a second call on the same directory resumes.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import platform
+import time
+from pathlib import Path
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxloco.dynamics.model import load_valkyrie
+from jaxloco.locomotion import GaitParams, make_walking_controller
+from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
+from jaxloco.sim.push import body_index
+from jaxloco.sweep.backends import CBatchBackend, ChunkStarts, MJXBackend
+from jaxloco.sweep.outcome import finalize
+from jaxloco.sweep.spec import PushTable, SweepSpec, expand
+from jaxloco.sweep.starts import gather_starts, snapshot_walk, walk_key
+from jaxloco.sweep.store import SweepStore
+
+BACKENDS = ("c", "mjx")
+
+
+@dataclasses.dataclass
+class SweepResult:
+    table: PushTable
+    outcomes: dict
+    """Outcome columns (:data:`jaxloco.sweep.outcome.FIELDS`), one entry per push."""
+    complete: np.ndarray
+    """Rows that have results."""
+    manifest: dict
+    run_dir: Path
+
+
+def _chunks(n: int, size: int) -> list[np.ndarray]:
+    return [np.arange(i, min(i + size, n)) for i in range(0, n, size)]
+
+
+def run_sweep(
+    spec: SweepSpec,
+    run_dir,
+    backend: str = "c",
+    chunk_size: int = 16,
+    gait: GaitParams | None = None,
+    physics: PhysicsParams | None = None,
+    push_body: str = "pelvis",
+    nthread: int | None = None,
+    config: dict | None = None,
+    progress: bool = True,
+    max_chunks: int | None = None,
+) -> SweepResult:
+    """Run (or resume) the sweep ``spec`` into ``run_dir``.
+
+    ``backend``: ``"c"`` (MuJoCo C batch + vmapped JAX controller) or ``"mjx"``.
+    ``config``: the resolved experiment config, recorded in the manifest.
+    ``max_chunks``: stop after this many new chunks (to split a long sweep over sessions).
+    ``physics``: solver settings of the simulated robot (default :class:`PhysicsParams`).
+    """
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}; got {backend!r}")
+    if chunk_size < 1:
+        raise ValueError(f"chunk_size must be >= 1; got {chunk_size}")
+    gait = GaitParams() if gait is None else gait
+    physics = PhysicsParams() if physics is None else physics
+    devices = jax.devices()
+    if backend == "mjx" and chunk_size % len(devices):
+        chunk_size = len(devices) * math.ceil(chunk_size / len(devices))
+    table = expand(spec)
+    store = SweepStore(run_dir)
+    chunks = _chunks(len(table), chunk_size)
+    manifest = store.open(
+        {
+            "spec_digest": spec.digest(),
+            "spec": dataclasses.asdict(spec),
+            "config": config,
+            "gait": dataclasses.asdict(gait),
+            "physics": None if physics is None else dataclasses.asdict(physics),
+            "backend": backend,
+            "chunk_size": chunk_size,
+            "num_pushes": len(table),
+            "num_chunks": len(chunks),
+            "devices": [str(d) for d in devices],
+            "host": platform.node(),
+            "runs": [],
+        },
+        table,
+    )
+    todo = [i for i in range(len(chunks)) if not store.done(i)]
+    if max_chunks is not None:
+        todo = todo[:max_chunks]
+    if todo:
+        _run_chunks(
+            spec, store, manifest, table, chunks, todo, backend, chunk_size, gait, physics,
+            push_body, nthread, progress,
+        )  # fmt: skip
+    table, outcomes, have = store.load_results()
+    return SweepResult(table, outcomes, have, store.read_manifest(), store.dir)
+
+
+def _run_chunks(
+    spec, store, manifest, table, chunks, todo, backend, chunk_size, gait, physics, push_body,
+    nthread, progress,
+):  # fmt: skip
+    t_start = time.perf_counter()
+    model = load_valkyrie()
+    sim_model = physics_model(model, physics) if physics is not None else model
+    body = body_index(model, push_body)
+    ctrl = make_walking_controller(model, gait=gait)
+    dt = model.opt.timestep
+    horizon_steps = int(round(spec.horizon / dt))
+
+    # Undisturbed walks: one per (speed, turn, replan) the remaining rows need.
+    rows_todo = np.concatenate([chunks[i] for i in todo])
+    step_fn = jax.jit(ctrl.step)
+    snapshots = {}
+    keys = [
+        walk_key(table["apex_speed"][r], table["turn_deg"][r], table["replan"][r])
+        for r in rows_todo
+    ]
+    for key in tqdm(sorted(set(keys)), desc="undisturbed walks", disable=not progress):
+        phases = table["phase"][rows_todo][[k == key for k in keys]]
+        snapshots[key] = snapshot_walk(
+            sim_model, ctrl, step_fn, *key, spec.push_step, phases, spec.fall_height
+        )
+    t_walks = time.perf_counter() - t_start
+
+    if backend == "c":
+        runner = CBatchBackend(sim_model, ctrl, body, spec.fall_height, nthread)
+    else:
+        runner = MJXBackend(sim_model, ctrl, body, spec.fall_height, horizon_steps)
+
+    done_rows = sum(len(chunks[i]) for i in range(len(chunks)) if store.done(i))
+    recovered = 0
+    bar = tqdm(
+        total=len(table), initial=done_rows, desc=f"push sweep ({backend})", unit="push",
+        disable=not progress,
+    )  # fmt: skip
+    chunk_times = []
+    steps_done = [0]
+
+    def tick_progress(n_env_steps):
+        steps_done[0] += n_env_steps
+
+    for index in todo:
+        rows = chunks[index]
+        padded = np.concatenate([rows, np.full(chunk_size - len(rows), rows[-1])])
+        times, phys, cstate = gather_starts(
+            table, padded, snapshots, spec.qvel_noise, model.nq, model.nv
+        )
+        heading = np.asarray(cstate.gait.heading, float)
+        pushes = np.stack(
+            [
+                table["magnitude"][padded],
+                heading + np.radians(table["direction_deg"][padded]),
+                times,
+                table["duration"][padded],
+            ],
+            axis=1,
+        )
+        t0 = time.perf_counter()
+        steps_before = steps_done[0]
+        outcome = runner.run(
+            ChunkStarts(times, phys, cstate, pushes), horizon_steps, progress=tick_progress
+        )
+        cols = finalize(outcome, spec.steps_after)
+        cols = {k: v[: len(rows)] for k, v in cols.items()}
+        store.write_chunk(index, rows, cols)
+        elapsed = time.perf_counter() - t0
+        chunk_times.append(elapsed)
+        recovered += int(cols["recovered"].sum())
+        done_rows += len(rows)
+        bar.update(len(rows))
+        bar.set_postfix(
+            recovered=f"{recovered}/{bar.n - (bar.initial or 0)}",
+            env_steps_s=f"{(steps_done[0] - steps_before) / elapsed:.0f}",
+        )
+    bar.close()
+
+    steady = chunk_times[1:] or chunk_times
+    manifest = store.read_manifest()
+    manifest["runs"].append(
+        {
+            "chunks": list(todo),
+            "undisturbed_walks_s": t_walks,
+            "first_chunk_s": chunk_times[0],
+            "steady_chunk_s": float(np.mean(steady)),
+            "env_steps_per_s": chunk_size * horizon_steps / float(np.mean(steady)),
+            "wall_s": time.perf_counter() - t_start,
+        }
+    )
+    store.write_manifest(manifest)

@@ -1,0 +1,162 @@
+"""What a push sweep runs: the specification and its table of pushes.
+
+A :class:`SweepSpec` is plain numbers and lists (a hydra structured-config node). In
+``grid`` mode every combination of its lists is one push; in ``random`` mode ``num_random``
+pushes are drawn uniformly from the ranges the lists span (directions over the circle).
+:func:`expand` turns it into a :class:`PushTable`: one row per push, in a fixed order, so
+row ``i`` is the same push however the sweep is chunked or sharded.
+
+Gait phase: each push starts during the single support of step ``push_step`` of the
+undisturbed walk, at ``phase`` in [0, 1] of it (0: just after lift-off, 1: at touch-down).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import math
+
+import numpy as np
+
+COLUMNS = (
+    "direction_deg",
+    "magnitude",
+    "duration",
+    "phase",
+    "apex_speed",
+    "turn_deg",
+    "replan",
+    "seed",
+)
+LIST_FIELDS = (
+    "directions_deg",
+    "magnitudes",
+    "durations",
+    "phases",
+    "apex_speeds",
+    "turns_deg",
+    "replan",
+    "seeds",
+)
+
+
+@dataclasses.dataclass(frozen=True)
+class SweepSpec:
+    directions_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0)
+    """Where the force points in the walking frame at the push (0: forward, i.e. a push
+    from behind; 90: to the robot's left)."""
+    magnitudes: tuple[float, ...] = (520.0,)
+    """Force (N)."""
+    durations: tuple[float, ...] = (0.1,)
+    """Push duration (s)."""
+    phases: tuple[float, ...] = (0.5,)
+    """Fraction of the single support of step ``push_step`` at which the push starts."""
+    apex_speeds: tuple[float, ...] = (1.0,)
+    """Cap on the planner's apex velocity (m/s, ``GaitParams.max_apex_speed``): walking
+    speed. Values >= 0.37 leave the shipped policy's own speed."""
+    turns_deg: tuple[float, ...] = (0.0,)
+    """Heading change per step while walking (deg)."""
+    replan: tuple[bool, ...] = (True, False)
+    """Eq. 33-34 replanning on / off."""
+    seeds: tuple[int, ...] = (0,)
+    mode: str = "grid"
+    """``grid`` or ``random``."""
+    num_random: int = 64
+    push_step: int = 4
+    """The step (counted from the first lift-off) during which pushes start."""
+    horizon: float = 3.0
+    """Simulated seconds from the push's start."""
+    steps_after: int = 2
+    """Steps that must begin after the push for it to count as recovered."""
+    qvel_noise: float = 0.0
+    """Std of noise added to every joint velocity at the push's start (per seed and push;
+    0: seeds only matter in random mode)."""
+    fall_height: float = 0.7
+    """Pelvis height below which the robot has fallen (m)."""
+
+    def __post_init__(self):
+        checks = [
+            ("mode", self.mode in ("grid", "random"), "'grid' or 'random'"),
+            ("num_random", self.num_random >= 1, ">= 1"),
+            ("push_step", self.push_step >= 1, ">= 1"),
+            ("horizon", self.horizon > 0, "> 0"),
+            ("steps_after", self.steps_after >= 0, ">= 0"),
+            ("qvel_noise", self.qvel_noise >= 0, ">= 0"),
+            ("fall_height", self.fall_height > 0, "> 0"),
+        ]
+        for name in LIST_FIELDS:
+            checks.append((name, len(getattr(self, name)) > 0, "a non-empty list"))
+        checks += [
+            ("magnitudes", all(m >= 0 for m in self.magnitudes), "values >= 0 (N)"),
+            ("durations", all(d > 0 for d in self.durations), "values > 0 (s)"),
+            ("phases", all(0 <= p <= 1 for p in self.phases), "values in [0, 1]"),
+            ("apex_speeds", all(v > 0 for v in self.apex_speeds), "values > 0 (m/s)"),
+            ("turns_deg", all(abs(t) <= 45 for t in self.turns_deg), "values in [-45, 45]"),
+            ("seeds", all(int(s) == s and s >= 0 for s in self.seeds), "integers >= 0"),
+        ]
+        for name, ok, rule in checks:
+            if not ok:
+                raise ValueError(f"SweepSpec.{name} must be {rule}; got {getattr(self, name)!r}")
+        for name in ("directions_deg", "magnitudes", "durations", "phases", "turns_deg"):
+            if not all(math.isfinite(v) for v in getattr(self, name)):
+                raise ValueError(f"SweepSpec.{name} must be finite; got {getattr(self, name)}")
+
+    def digest(self) -> str:
+        """A short hash of every field: a run directory belongs to one spec."""
+        text = json.dumps(dataclasses.asdict(self), sort_keys=True)
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclasses.dataclass(frozen=True)
+class PushTable:
+    """One row per push; every column a numpy array of the same length."""
+
+    columns: dict
+
+    def __len__(self) -> int:
+        return len(self.columns["direction_deg"])
+
+    def __getitem__(self, name) -> np.ndarray:
+        return self.columns[name]
+
+    def rows(self, index) -> PushTable:
+        return PushTable({k: v[index] for k, v in self.columns.items()})
+
+
+def expand(spec: SweepSpec) -> PushTable:
+    """The pushes of ``spec`` (see the module doc)."""
+    lists = [getattr(spec, name) for name in LIST_FIELDS]
+    if spec.mode == "grid":
+        rows = list(itertools.product(*lists))
+        cols = {name: np.array([r[k] for r in rows]) for k, name in enumerate(COLUMNS)}
+    else:
+        # One stream for the whole table: the same spec always gives the same rows.
+        rng = np.random.default_rng(list(spec.seeds))
+        n = spec.num_random
+
+        def span(values):
+            return (
+                rng.uniform(min(values), max(values), n)
+                if len(values) > 1
+                else (np.full(n, values[0], float))
+            )
+
+        cols = {
+            "direction_deg": rng.uniform(0.0, 360.0, n)
+            if len(spec.directions_deg) > 1
+            else np.full(n, float(spec.directions_deg[0])),
+            "magnitude": span(spec.magnitudes),
+            "duration": span(spec.durations),
+            "phase": span(spec.phases),
+            "apex_speed": rng.choice(np.asarray(spec.apex_speeds, float), n),
+            "turn_deg": rng.choice(np.asarray(spec.turns_deg, float), n),
+            "replan": rng.choice(np.asarray(spec.replan, bool), n),
+            "seed": rng.choice(np.asarray(spec.seeds, int), n),
+        }
+    cols = {
+        k: v.astype(bool if k == "replan" else int if k == "seed" else float)
+        for k, v in cols.items()
+    }
+    return PushTable(cols)

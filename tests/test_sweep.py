@@ -1,0 +1,108 @@
+"""Push sweeps: the spec, the store (resume, chunking), the report, and small real sweeps."""
+
+import json
+
+import numpy as np
+import pytest
+
+from jaxloco.sweep import SweepSpec, SweepStore, expand, summarize
+from jaxloco.sweep.outcome import FIELDS
+
+
+def test_spec_rejects_bad_values_naming_the_field():
+    with pytest.raises(ValueError, match="SweepSpec.phases"):
+        SweepSpec(phases=(1.5,))
+    with pytest.raises(ValueError, match="SweepSpec.magnitudes"):
+        SweepSpec(magnitudes=())
+    with pytest.raises(ValueError, match="SweepSpec.mode"):
+        SweepSpec(mode="sobol")
+
+
+def test_grid_expands_every_combination_in_a_fixed_order():
+    spec = SweepSpec(
+        directions_deg=(0.0, 90.0, 180.0), magnitudes=(100.0, 200.0), replan=(True, False)
+    )
+    table = expand(spec)
+    assert len(table) == 12
+    assert table["direction_deg"][:4].tolist() == [0.0] * 4
+    assert table["replan"][:2].tolist() == [True, False]
+    assert np.all(expand(spec)["magnitude"] == table["magnitude"])
+
+
+def test_random_mode_is_reproducible_and_inside_the_ranges():
+    spec = SweepSpec(mode="random", num_random=50, magnitudes=(100.0, 600.0), phases=(0.1, 0.9))
+    a, b = expand(spec), expand(spec)
+    assert np.array_equal(a["magnitude"], b["magnitude"])
+    assert a["magnitude"].min() >= 100 and a["magnitude"].max() <= 600
+    assert a["phase"].min() >= 0.1 and a["phase"].max() <= 0.9
+    other = expand(SweepSpec(mode="random", num_random=50, magnitudes=(100.0, 600.0), seeds=(1,)))
+    assert not np.array_equal(a["magnitude"], other["magnitude"])
+
+
+def _fake_outcome(n, recovered):
+    out = {k: np.zeros(n, int) for k in FIELDS}
+    out["recovered"] = np.asarray(recovered, bool)
+    out["fell"] = ~out["recovered"]
+    for k in ("fall_time", "max_com_error", "max_com_offset", "peak_torque_norm"):
+        out[k] = np.zeros(n)
+    return out
+
+
+def test_store_resumes_and_refuses_another_sweep(tmp_path):
+    spec = SweepSpec(directions_deg=(0.0, 90.0), replan=(True,))
+    table = expand(spec)
+    store = SweepStore(tmp_path)
+    manifest = {"spec_digest": spec.digest(), "chunk_size": 1, "num_pushes": 2, "runs": []}
+    store.open(manifest, table)
+    store.write_chunk(1, np.array([1]), _fake_outcome(1, [True]))
+    assert not store.done(0) and store.done(1)
+    assert store.open(dict(manifest), table) == manifest  # same sweep: resumes
+    with pytest.raises(ValueError, match="different sweep"):
+        store.open(dict(manifest, spec_digest="x"), table)
+    _, out, have = store.load_results()
+    assert have.tolist() == [False, True] and out["recovered"][1]
+    assert not list(tmp_path.glob("chunks/*.tmp*"))
+
+
+def test_largest_recovered_impulse_stops_at_the_first_failure():
+    spec = SweepSpec(directions_deg=(0.0,), magnitudes=(100.0, 200.0, 300.0), replan=(True,))
+    table = expand(spec)
+    s = summarize(table, _fake_outcome(3, [True, False, True]), np.ones(3, bool))
+    d = s["variants"]["replan"]["directions"]["0"]
+    assert d["largest_recovered_impulse_Ns"] == pytest.approx(10.0)
+    assert d["recovered"] == 2
+
+
+CI_SPEC = dict(
+    directions_deg=(0.0, 90.0, 180.0),
+    magnitudes=(200.0,),
+    phases=(0.5,),
+    replan=(True,),
+    push_step=2,
+    horizon=1.2,
+    steps_after=1,
+)
+
+
+def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path):
+    """A real sweep (C backend): three pushes, in chunks of 2 and of 1, and a resumed run."""
+    from jaxloco.sweep import run_sweep, write_report
+
+    spec = SweepSpec(**CI_SPEC)
+    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=2, progress=False)
+    assert a.complete.all()
+    assert a.outcomes["recovered"].dtype == bool
+    # 200 N x 0.1 s is well inside what the walking controller recovers.
+    assert a.outcomes["recovered"].all(), a.outcomes
+    assert np.all(a.outcomes["steps_after"] >= 1)
+    b = run_sweep(spec, tmp_path / "b", backend="c", chunk_size=1, progress=False, max_chunks=2)
+    assert b.complete.tolist() == [True, True, False]
+    b = run_sweep(spec, tmp_path / "b", backend="c", chunk_size=1, progress=False)
+    assert b.complete.all()
+    assert len(b.manifest["runs"]) == 2 and b.manifest["runs"][1]["chunks"] == [2]
+    for k in FIELDS:
+        np.testing.assert_allclose(a.outcomes[k], b.outcomes[k], rtol=1e-5, err_msg=k)
+    summary = write_report(tmp_path / "a")
+    assert summary["variants"]["replan"]["recovered"] == 3
+    assert (tmp_path / "a" / "success_polar.png").stat().st_size > 0
+    assert json.loads((tmp_path / "a" / "summary.json").read_text())["pushes"] == 3
