@@ -18,6 +18,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
+from jaxloco.control.wblc import WBLCConfig
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
@@ -53,6 +54,7 @@ def run_sweep(
     chunk_size: int = 16,
     gait: GaitParams | None = None,
     physics: PhysicsParams | None = None,
+    wblc: WBLCConfig | None = None,
     push_body: str = "pelvis",
     nthread: int | None = None,
     config: dict | None = None,
@@ -65,6 +67,7 @@ def run_sweep(
     ``config``: the resolved experiment config, recorded in the manifest.
     ``max_chunks``: stop after this many new chunks (to split a long sweep over sessions).
     ``physics``: solver settings of the simulated robot (default :class:`PhysicsParams`).
+    ``wblc``: the controller's WBLC configuration (default: the walking preset).
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}; got {backend!r}")
@@ -78,12 +81,13 @@ def run_sweep(
     table = expand(spec)
     store = SweepStore(run_dir)
     chunks = _chunks(len(table), chunk_size)
-    manifest = store.open(
+    store.open(
         {
             "spec_digest": spec.digest(),
             "spec": dataclasses.asdict(spec),
             "config": config,
             "gait": dataclasses.asdict(gait),
+            "wblc_com_acc_limit": None if wblc is None else wblc.com_acc_limit,
             "physics": None if physics is None else dataclasses.asdict(physics),
             "backend": backend,
             "chunk_size": chunk_size,
@@ -100,7 +104,7 @@ def run_sweep(
         todo = todo[:max_chunks]
     if todo:
         _run_chunks(
-            spec, store, manifest, table, chunks, todo, backend, chunk_size, gait, physics,
+            spec, store, table, chunks, todo, backend, chunk_size, gait, physics, wblc,
             push_body, nthread, progress,
         )  # fmt: skip
     table, outcomes, have = store.load_results()
@@ -108,14 +112,14 @@ def run_sweep(
 
 
 def _run_chunks(
-    spec, store, manifest, table, chunks, todo, backend, chunk_size, gait, physics, push_body,
+    spec, store, table, chunks, todo, backend, chunk_size, gait, physics, wblc, push_body,
     nthread, progress,
 ):  # fmt: skip
     t_start = time.perf_counter()
     model = load_valkyrie()
     sim_model = physics_model(model, physics) if physics is not None else model
     body = body_index(model, push_body)
-    ctrl = make_walking_controller(model, gait=gait)
+    ctrl = make_walking_controller(model, config=wblc, gait=gait)
     dt = model.opt.timestep
     horizon_steps = int(round(spec.horizon / dt))
 
@@ -140,7 +144,7 @@ def _run_chunks(
         runner = MJXBackend(sim_model, ctrl, body, spec.fall_height, horizon_steps)
 
     done_rows = sum(len(chunks[i]) for i in range(len(chunks)) if store.done(i))
-    recovered = 0
+    recovered = attempted = 0
     bar = tqdm(
         total=len(table), initial=done_rows, desc=f"push sweep ({backend})", unit="push",
         disable=not progress,
@@ -178,10 +182,11 @@ def _run_chunks(
         elapsed = time.perf_counter() - t0
         chunk_times.append(elapsed)
         recovered += int(cols["recovered"].sum())
+        attempted += len(rows)
         done_rows += len(rows)
         bar.update(len(rows))
         bar.set_postfix(
-            recovered=f"{recovered}/{bar.n - (bar.initial or 0)}",
+            recovered=f"{recovered}/{attempted}",
             env_steps_s=f"{(steps_done[0] - steps_before) / elapsed:.0f}",
         )
     bar.close()
