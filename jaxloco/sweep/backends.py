@@ -45,14 +45,19 @@ class ChunkStarts:
     """(B, 4) push rows ``(magnitude, direction_rad, start, duration)``."""
 
 
-def mjx_loop_states(sim_model: mujoco.MjModel, starts: ChunkStarts) -> LoopState:
+def mjx_loop_states(sim_model: mujoco.MjModel, starts: ChunkStarts, mx=None) -> LoopState:
     """MJX closed-loop states (leading axis: runs) from a chunk's start states."""
     m, d = sim_model, mujoco.MjData(sim_model)
+    mx = mjx.put_model(m) if mx is None else mx
     datas = []
     for row in starts.physics:
         mujoco.mj_setState(m, d, row, STATE_SPEC)
         mujoco.mj_forward(m, d)
         datas.append(mjx.put_data(m, d))
+    # put_data and step disagree on some integer dtypes (contact ids, int32 vs int64 under
+    # x64): give the data the types step returns, so it can be a scan carry.
+    types = jax.eval_shape(lambda x: mjx.step(mx, x), datas[0])
+    datas = [jax.tree.map(lambda x, t: jnp.asarray(x, t.dtype), x, types) for x in datas]
     data = jax.tree.map(lambda *xs: jnp.stack(xs), *datas)
     n = len(starts.times)
     return LoopState(
@@ -184,7 +189,7 @@ class MJXBackend:
         n = len(starts.times)
         if n % self.batch_multiple:
             raise ValueError(f"chunk of {n} runs is not a multiple of {self.batch_multiple}")
-        state = mjx_loop_states(self.model, starts)
+        state = mjx_loop_states(self.model, starts, self.mx)
         outcome = jax.vmap(init_outcome)(state.controller)
         pushes = jnp.asarray(starts.pushes, state.data.qpos.dtype)
         args = (state, outcome, pushes)
