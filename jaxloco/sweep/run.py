@@ -1,5 +1,12 @@
 """Run a push sweep: expand the spec, snapshot the undisturbed walks, run chunk by chunk.
 
+Several devices: the MJX backend shards each chunk across ``jax.devices()``. Several
+hosts: call ``jax.distributed.initialize(...)`` on every host before :func:`run_sweep` and
+run the same command on each (with a shared run directory): ``jax.devices()`` then spans
+the hosts, every process builds the same chunk (the start states are deterministic) and
+hands it to the global sharding, and only process 0 writes results. Tested here with two
+virtual CPU devices in one process (``tests/test_sweep.py``); not run on several hosts.
+
 :func:`run_sweep` is what ``jaxloco push-sweep`` calls. Each chunk of ``chunk_size`` pushes
 is one batched backend call (the last chunk is padded with copies of its last push, so every
 call has the same shape and compiles once); its outcomes are written before the next chunk
@@ -79,7 +86,7 @@ def run_sweep(
     if backend == "mjx" and chunk_size % len(devices):
         chunk_size = len(devices) * math.ceil(chunk_size / len(devices))
     table = expand(spec)
-    store = SweepStore(run_dir)
+    store = SweepStore(run_dir, writer=jax.process_index() == 0)
     chunks = _chunks(len(table), chunk_size)
     store.open(
         {

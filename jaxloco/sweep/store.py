@@ -26,9 +26,13 @@ from jaxloco.sweep.spec import PushTable
 
 
 class SweepStore:
-    def __init__(self, run_dir: str | os.PathLike):
+    """``writer=False`` reads but never writes (the other processes of a multi-host run:
+    only process 0 writes)."""
+
+    def __init__(self, run_dir: str | os.PathLike, writer: bool = True):
         self.dir = Path(run_dir)
         self.chunks_dir = self.dir / "chunks"
+        self.writer = writer
 
     @property
     def manifest_path(self) -> Path:
@@ -43,6 +47,8 @@ class SweepStore:
         return json.loads(self.manifest_path.read_text())
 
     def write_manifest(self, manifest: dict) -> None:
+        if not self.writer:
+            return
         self.dir.mkdir(parents=True, exist_ok=True)
         tmp = self.manifest_path.with_suffix(".json.tmp")
         tmp.write_text(json.dumps(to_jsonable(manifest), indent=2) + "\n")
@@ -61,6 +67,8 @@ class SweepStore:
                         f"{manifest.get(key)!r} now); choose another run directory"
                     )
             return old
+        if not self.writer:
+            return manifest
         self.chunks_dir.mkdir(parents=True, exist_ok=True)
         np.savez(self.dir / "pushes.npz", **table.columns)
         self.write_manifest(manifest)
@@ -73,6 +81,8 @@ class SweepStore:
         return self.chunk_path(index).exists()
 
     def write_chunk(self, index: int, rows: np.ndarray, outcome: dict) -> None:
+        if not self.writer:
+            return
         path = self.chunk_path(index)
         tmp = path.with_name(path.stem + ".tmp.npz")
         np.savez(tmp, rows=rows, **outcome)
