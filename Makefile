@@ -33,7 +33,7 @@ walk: $(STAMP)
 
 # The CI suite: everything except full-size end-to-end runs (their small versions run here).
 test: $(STAMP)
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 test-all: $(STAMP)
 	$(BIN)/python -m pytest -q --runslow

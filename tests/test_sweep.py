@@ -20,7 +20,10 @@ def test_spec_rejects_bad_values_naming_the_field():
 
 def test_grid_expands_every_combination_in_a_fixed_order():
     spec = SweepSpec(
-        directions_deg=(0.0, 90.0, 180.0), magnitudes=(100.0, 200.0), replan=(True, False)
+        directions_deg=(0.0, 90.0, 180.0),
+        magnitudes=(100.0, 200.0),
+        phases=(0.5,),
+        replan=(True, False),
     )
     table = expand(spec)
     assert len(table) == 12
@@ -49,7 +52,7 @@ def _fake_outcome(n, recovered):
 
 
 def test_store_resumes_and_refuses_another_sweep(tmp_path):
-    spec = SweepSpec(directions_deg=(0.0, 90.0), replan=(True,))
+    spec = SweepSpec(directions_deg=(0.0, 90.0), magnitudes=(520.0,), phases=(0.5,), replan=(True,))
     table = expand(spec)
     store = SweepStore(tmp_path)
     manifest = {"spec_digest": spec.digest(), "chunk_size": 1, "num_pushes": 2, "runs": []}
@@ -65,7 +68,9 @@ def test_store_resumes_and_refuses_another_sweep(tmp_path):
 
 
 def test_largest_recovered_impulse_stops_at_the_first_failure():
-    spec = SweepSpec(directions_deg=(0.0,), magnitudes=(100.0, 200.0, 300.0), replan=(True,))
+    spec = SweepSpec(
+        directions_deg=(0.0,), magnitudes=(100.0, 200.0, 300.0), phases=(0.5,), replan=(True,)
+    )
     table = expand(spec)
     s = summarize(table, _fake_outcome(3, [True, False, True]), np.ones(3, bool))
     d = s["variants"]["replan"]["directions"]["0"]
