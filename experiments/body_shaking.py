@@ -18,21 +18,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import hydra
-import jax
-import jax.numpy as jnp
-import mujoco
-import numpy as np
 from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
-from mujoco.mjx._src import math as mjx_math
 from omegaconf import OmegaConf
 
+from jaxloco.control.gains import apply_gains_file
 from jaxloco.control.presets import body_shaking_config
-from jaxloco.control.wblc import make_wblc
-from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
+from jaxloco.control.shaking import ShakingParams
+from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
-from jaxloco.sim import run_closed_loop
+from jaxloco.sim.shaking import shaking_metrics, simulate_shaking
 
 log = logging.getLogger(__name__)
 
@@ -54,6 +50,8 @@ class BodyShakingConfig:
     shaking and wobbles even at rest; 1e-3 holds still at rest (measured)."""
     torque_limits: bool = True
     """Simulate with the actuators' effort limits (MuJoCo clamps); False lifts them."""
+    gains_file: str = ""
+    """A gains file (``jaxloco tune-gains`` writes ``tuned_gains.json``); "": hand-set."""
     timeout_s: float = 1800.0
     dpi: int = 130
 
@@ -61,58 +59,18 @@ class BodyShakingConfig:
 ConfigStore.instance().store(name="body_shaking", node=BodyShakingConfig)
 
 
-def shaking_reference(cfg: BodyShakingConfig, q0, t):
-    """Body orientation reference (quaternion, angular velocity, acceleration) at time t."""
-    w = 2 * jnp.pi * cfg.frequency_hz
-    amp = jnp.asarray([cfg.roll_amplitude, cfg.pitch_amplitude, cfg.yaw_amplitude])
-    phase = jnp.asarray([0.0, jnp.pi / 2, 0.0])
-    ramp = jnp.clip(t / cfg.ramp, 0.0, 1.0) if cfg.ramp > 0 else 1.0
-    rot = ramp * amp * jnp.sin(w * t + phase)
-    vel = ramp * amp * w * jnp.cos(w * t + phase)
-    acc = -ramp * amp * w**2 * jnp.sin(w * t + phase)
-    return mjx_math.quat_mul(_exp(rot), q0), vel, acc
-
-
-def _exp(rotvec):
-    angle = jnp.sqrt(rotvec @ rotvec + 1e-30)
-    return jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) / angle * rotvec])
-
-
 def simulate(model, which: str, cfg: BodyShakingConfig):
-    ctrl = make_wblc(model, body_shaking_config(which, pinv_rtol=cfg.pinv_rtol))
-    data = mujoco.MjData(model)
-    data.qpos[:] = keyframe_qpos(model, "walk")
-    mujoco.mj_forward(model, data)
-    refs0 = ctrl.hold_references(jnp.asarray(data.qpos))
-    q0 = refs0["body_ori"].pos
-    contact = jnp.ones(2)
-
-    @jax.jit
-    def controller(t, qpos, qvel, prev):
-        quat, vel, acc = shaking_reference(cfg, q0, t)
-        refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
-        out = ctrl(qpos, qvel, refs, contact, previous=prev)
-        dg = out.diagnostics
-        err = dg.task_errors["body_ori"]
-        logged = {
-            "body_error": jnp.linalg.norm(err),
-            "torque_norm": jnp.linalg.norm(out.torques),
-            "relaxed": dg.qp_relaxed,
-            "over_limit": jnp.any(dg.torque_over_limit),
-        }
-        return out.torques, out.qp_state, logged
-
-    steps = int(round(cfg.duration / model.opt.timestep))
-    result, _ = run_closed_loop(
+    config = body_shaking_config(which, pinv_rtol=cfg.pinv_rtol)
+    shaking = ShakingParams(
+        cfg.roll_amplitude, cfg.pitch_amplitude, cfg.yaw_amplitude, cfg.frequency_hz, cfg.ramp
+    )
+    return simulate_shaking(
         model,
-        data,
-        controller,
-        ctrl.initial_qp_state(),
-        steps,
-        stop=lambda d: d.qpos[2] < 0.7,
+        apply_gains_file(config, cfg.gains_file),
+        shaking,
+        cfg.duration,
         progress=f"shaking {which}",
     )
-    return result
 
 
 def run(cfg: BodyShakingConfig, out_dir: Path) -> dict:
@@ -124,18 +82,8 @@ def run(cfg: BodyShakingConfig, out_dir: Path) -> dict:
     with watchdog(cfg.timeout_s, "body shaking"):
         for which in cfg.hierarchies:
             res = simulate(model, which, cfg)
-            out = res.outputs
             runs[which] = res
-            results[which] = {
-                "fell": bool(res.fell),
-                "simulated_s": float(res.time[-1]) if len(res.time) else 0.0,
-                "rms_body_error_rad": float(np.sqrt(np.mean(out["body_error"] ** 2))),
-                "max_body_error_rad": float(np.max(out["body_error"])),
-                "mean_torque_norm_Nm": float(np.mean(out["torque_norm"])),
-                "max_torque_norm_Nm": float(np.max(out["torque_norm"])),
-                "qp_relaxed_ticks": int(np.sum(out["relaxed"])),
-                "torque_over_limit_ticks": int(np.sum(out["over_limit"])),
-            }
+            results[which] = shaking_metrics(res)
             log.info("%s: %s", which, results[which])
 
     fig = Figure(figsize=(10, 6), constrained_layout=True)

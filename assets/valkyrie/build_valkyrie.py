@@ -33,28 +33,77 @@ TINY_INERTIA = 1e-5
 # name: (mass, com, diag inertia, joint axis, joint offset from parent)
 PELVIS = dict(mass=8.220, com=(-0.0053, -0.0035, -0.0036), inertia=(0.1187, 0.0980, 0.0839))
 LEG = [
-    ("hipYaw", 2.390, (0.0218, -0.0013, 0.0387), (0.0173, 0.0149, 0.0112), "z", (0, 0.1016, -0.1853)),
+    (
+        "hipYaw",
+        2.390,
+        (0.0218, -0.0013, 0.0387),
+        (0.0173, 0.0149, 0.0112),
+        "z",
+        (0, 0.1016, -0.1853),
+    ),
     ("hipRoll", 3.665, (0.0130, 0.0076, -0.0159), (0.0060, 0.0094, 0.0082), "x", (0, 0, 0)),
     ("hipPitch", 10.200, (0.0167, 0.0914, -0.2079), (0.2408, 0.2569, 0.0233), "y", (0, 0, -0.0609)),
-    ("knee", 6.200, (-0.0222, 0.0017, -0.1894), (0.0869, 0.0916, 0.0140), "y", (0.0001, 0.0361, -0.4310)),
+    (
+        "knee",
+        6.200,
+        (-0.0222, 0.0017, -0.1894),
+        (0.0869, 0.0916, 0.0140),
+        "y",
+        (0.0001, 0.0361, -0.4310),
+    ),
     ("anklePitch", 0.030, (0, 0, 0), (0, 0, 0), "y", (-0.0102, 0, -0.4063)),
     ("ankleRoll", 2.370, (0.0369, 0.0049, -0.0489), (0.0064, 0.0180, 0.0209), "x", (0, 0, 0)),
 ]
 TORSO = [
     ("torsoYaw", 0.500, (0, 0, -0.01), (0.0006, 0.0006, 0.0011), "z", (0, 0, 0)),
     ("torsoPitch", 0.100, (0, 0, 0.005), (0, 0, 0), "y", (0.0419, 0, 0)),
-    ("torsoRoll", 39.470, (-0.0955, -0.0033, 0.2431), (0.8733, 1.0108, 0.7784), "x", (0, 0, 0.0203)),
+    (
+        "torsoRoll",
+        39.470,
+        (-0.0955, -0.0033, 0.2431),
+        (0.8733, 1.0108, 0.7784),
+        "x",
+        (0, 0, 0.0203),
+    ),
 ]
 NECK = [
     ("lowerNeckPitch", 1.050, (-0.02, 0, 0.04), (0.0015, 0.0019, 0.0008), "y", (0.0204, 0, 0.3385)),
     ("neckYaw", 1.400, (-0.03, -0.01, 0.15), (0.0020, 0.0029, 0.0021), "z", (-0.0519, 0, 0)),
-    ("upperNeckPitch", 5.368, (0.1027, 0.0042, 0.0404), (0.0448, 0.0465, 0.0404), "y", (-0.06, 0, 0.196)),
+    (
+        "upperNeckPitch",
+        5.368,
+        (0.1027, 0.0042, 0.0404),
+        (0.0448, 0.0465, 0.0404),
+        "y",
+        (-0.06, 0, 0.196),
+    ),
 ]
 ARM = [
-    ("shoulderPitch", 2.650, (-0.012, 0.251, 0), (0.0137, 0.0105, 0.0148), "y", (-0.0316, 0, 0.2984)),
-    ("shoulderRoll", 3.970, (-0.0085, 0.0207, -0.0011), (0.0146, 0.0065, 0.0168), "x", (0, 0.2499, 0)),
+    (
+        "shoulderPitch",
+        2.650,
+        (-0.012, 0.251, 0),
+        (0.0137, 0.0105, 0.0148),
+        "y",
+        (-0.0316, 0, 0.2984),
+    ),
+    (
+        "shoulderRoll",
+        3.970,
+        (-0.0085, 0.0207, -0.0011),
+        (0.0146, 0.0065, 0.0168),
+        "x",
+        (0, 0.2499, 0),
+    ),
     ("shoulderYaw", 3.085, (-0.0043, 0.2098, 0.0073), (0.0394, 0.0049, 0.0419), "y", (0, 0, 0)),
-    ("elbowPitch", 1.830, (-0.0203, 0.0147, 0.0223), (0.0033, 0.0035, 0.0030), "z", (0.0254, 0.33, 0)),
+    (
+        "elbowPitch",
+        1.830,
+        (-0.0203, 0.0147, 0.0223),
+        (0.0033, 0.0035, 0.0030),
+        "z",
+        (0.0254, 0.33, 0),
+    ),
     ("forearmYaw", 3.506, (0.0113, 0.1921, 0.0146), (0.0471, 0.0066, 0.0458), "y", (-0.0254, 0, 0)),
 ]
 WRIST = (0, 0.2871, 0)
@@ -94,8 +143,13 @@ WALK_POSTURE = {
     "shoulderRoll": -1.3,  # left arm down (mirrored on the right)
 }
 
-COLORS = {"pelvis": "0.35 0.35 0.4 1", "limb": "0.85 0.85 0.88 1", "foot": "0.25 0.25 0.3 1",
-          "torso": "0.7 0.15 0.15 1", "head": "0.9 0.9 0.9 1"}
+COLORS = {
+    "pelvis": "0.35 0.35 0.4 1",
+    "limb": "0.85 0.85 0.88 1",
+    "foot": "0.25 0.25 0.3 1",
+    "torso": "0.7 0.15 0.15 1",
+    "head": "0.9 0.9 0.9 1",
+}
 
 
 def fmt(v):
@@ -115,8 +169,9 @@ def joint_range(name, side):
 
 def inertial(mass, com, inertia, side="left"):
     inertia = tuple(max(i, TINY_INERTIA) for i in inertia)
-    return (f'<inertial pos="{fmt(mirror(com, side))}" mass="{mass:.6g}" '
-            f'diaginertia="{fmt(inertia)}"/>')
+    return (
+        f'<inertial pos="{fmt(mirror(com, side))}" mass="{mass:.6g}" diaginertia="{fmt(inertia)}"/>'
+    )
 
 
 class Writer:
@@ -140,8 +195,10 @@ class Writer:
         (lo, hi), effort = joint_range(name, side)
         self.joints.append((side_name, effort))
         axis_v = {"x": (1, 0, 0), "y": (0, 1, 0), "z": (0, 0, 1)}[axis]
-        self.add(f'<joint name="{side_name}" type="hinge" axis="{fmt(axis_v)}" '
-                 f'range="{lo:.6g} {hi:.6g}"/>')
+        self.add(
+            f'<joint name="{side_name}" type="hinge" axis="{fmt(axis_v)}" '
+            f'range="{lo:.6g} {hi:.6g}"/>'
+        )
 
 
 def leg(w: Writer, side: str):
@@ -151,14 +208,20 @@ def leg(w: Writer, side: str):
         w.add(inertial(mass, com, inertia, side))
         w.joint(name, axis, f"{prefix}_{name}", side)
         if name == "hipPitch":  # thigh
-            w.add(f'<geom type="capsule" size="0.06" fromto="0 0 0 {fmt(mirror(LEG[3][5], side))}" '
-                  f'rgba="{COLORS["limb"]}" class="visual"/>')
+            w.add(
+                f'<geom type="capsule" size="0.06" fromto="0 0 0 {fmt(mirror(LEG[3][5], side))}" '
+                f'rgba="{COLORS["limb"]}" class="visual"/>'
+            )
         elif name == "knee":  # shin
-            w.add(f'<geom type="capsule" size="0.05" fromto="0 0 0 {fmt(mirror(LEG[4][5], side))}" '
-                  f'rgba="{COLORS["limb"]}" class="visual"/>')
+            w.add(
+                f'<geom type="capsule" size="0.05" fromto="0 0 0 {fmt(mirror(LEG[4][5], side))}" '
+                f'rgba="{COLORS["limb"]}" class="visual"/>'
+            )
         elif name == "ankleRoll":  # foot
-            w.add(f'<geom name="{prefix}_sole" type="box" size="{fmt(np.array(SOLE_SIZE) / 2)}" '
-                  f'pos="{fmt(SOLE_CENTRE)}" rgba="{COLORS["foot"]}" class="sole"/>')
+            w.add(
+                f'<geom name="{prefix}_sole" type="box" size="{fmt(np.array(SOLE_SIZE) / 2)}" '
+                f'pos="{fmt(SOLE_CENTRE)}" rgba="{COLORS["foot"]}" class="sole"/>'
+            )
             w.add(f'<site name="{prefix}_foot_cop" pos="{fmt((*COP, SOLE_Z))}" size="0.01"/>')
             for k, (dx, dy) in enumerate(CORNERS):
                 pos = (COP[0] + dx, COP[1] + dy, SOLE_Z)
@@ -175,11 +238,15 @@ def arm(w: Writer, side: str):
         w.add(inertial(mass, com, inertia, side))
         w.joint(name, axis, f"{side}_{name}", side)
         if name == "shoulderYaw":  # upper arm, to the elbow
-            w.add(f'<geom type="capsule" size="0.045" fromto="0 0 0 {fmt(mirror(ARM[3][5], side))}" '
-                  f'rgba="{COLORS["limb"]}" class="visual"/>')
+            w.add(
+                f'<geom type="capsule" size="0.045" fromto="0 0 0 {fmt(mirror(ARM[3][5], side))}" '
+                f'rgba="{COLORS["limb"]}" class="visual"/>'
+            )
         elif name == "forearmYaw":  # forearm and hand, to the wrist
-            w.add(f'<geom type="capsule" size="0.04" fromto="0 0 0 {fmt(mirror(WRIST, side))}" '
-                  f'rgba="{COLORS["limb"]}" class="visual"/>')
+            w.add(
+                f'<geom type="capsule" size="0.04" fromto="0 0 0 {fmt(mirror(WRIST, side))}" '
+                f'rgba="{COLORS["limb"]}" class="visual"/>'
+            )
             w.add(f'<site name="{side}_hand" pos="{fmt(mirror(WRIST, side))}" size="0.01"/>')
     for _ in ARM:
         w.close("body")
@@ -198,16 +265,20 @@ def build() -> tuple[str, list[tuple[str, float]]]:
         w.open(f'<body name="{name}_link" pos="{fmt(offset)}">')
         w.add(inertial(mass, com, inertia))
         w.joint(name, axis, name, "left")
-    w.add(f'<geom type="box" size="0.14 0.18 0.2" pos="-0.08 0 0.25" rgba="{COLORS["torso"]}" '
-          'class="visual"/>')
+    w.add(
+        f'<geom type="box" size="0.14 0.18 0.2" pos="-0.08 0 0.25" rgba="{COLORS["torso"]}" '
+        'class="visual"/>'
+    )
     w.add('<site name="torso" pos="0 0 0.25" size="0.01"/>')
     arm(w, "left")
     for name, mass, com, inertia, axis, offset in NECK:
         w.open(f'<body name="{name}_link" pos="{fmt(offset)}">')
         w.add(inertial(mass, com, inertia))
         w.joint(name, axis, name, "left")
-    w.add(f'<geom type="sphere" size="0.11" pos="0.06 0 0.05" rgba="{COLORS["head"]}" '
-          'class="visual"/>')
+    w.add(
+        f'<geom type="sphere" size="0.11" pos="0.06 0 0.05" rgba="{COLORS["head"]}" '
+        'class="visual"/>'
+    )
     for _ in NECK:
         w.close("body")
     arm(w, "right")

@@ -1,0 +1,1 @@
+"""Gradient-based tuning of controller gains through differentiable rollouts."""

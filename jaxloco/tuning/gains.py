@@ -1,0 +1,92 @@
+"""Tunable WBLC gains: a pytree of unconstrained parameters, kept positive by construction.
+
+The WBLC takes its gains as data (``{task: {"kp": (dim,), "kd": (dim,)}}``, see
+:func:`jaxloco.control.tasks.default_gains`), so they can be traced and differentiated.
+A :class:`GainSpace` says which of them are tuned and how:
+
+- each tuned gain is ``base * exp(s)`` with ``s`` unconstrained, ``s = 0`` at the hand-set
+  value: positive by construction, and a step in ``s`` is a relative change, so gains that
+  differ by orders of magnitude (CoM ``kp`` 220 vs body ``kd`` 20) share one learning rate;
+- ``per_row=False`` (default) gives one scale per task and gain (the rows keep their
+  ratios, e.g. the CoM's horizontal/vertical), ``True`` one per row.
+
+Gains not named stay as they are and get no gradient. Results are saved with
+:func:`jaxloco.control.gains.save_gains`, a small JSON file every experiment loads with
+``gains_file=...`` on its command line.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax.numpy as jnp
+import numpy as np
+
+from jaxloco.control.gains import GAIN_KINDS
+
+
+@dataclasses.dataclass(frozen=True)
+class GainSpace:
+    """Which gains are tuned: ``"task.kp"`` / ``"task.kd"`` names, e.g. ``"body_ori.kp"``."""
+
+    tuned: tuple[str, ...] = ("body_ori.kp", "body_ori.kd")
+    per_row: bool = False
+    max_log_scale: float = 3.0
+    """Scales are clipped to ``exp(+-max_log_scale)`` of the hand-set gains (x20 at 3)."""
+
+    def __post_init__(self):
+        if not self.tuned:
+            raise ValueError("GainSpace.tuned: name at least one gain, e.g. 'body_ori.kp'")
+        for name in self.tuned:
+            task, _, kind = name.partition(".")
+            if not task or kind not in GAIN_KINDS:
+                raise ValueError(
+                    f"GainSpace.tuned: {name!r} must be 'task.kp' or 'task.kd' (task: a name "
+                    "in the WBLC config)"
+                )
+        if len(set(self.tuned)) != len(self.tuned):
+            raise ValueError(f"GainSpace.tuned: names repeat in {self.tuned}")
+        if not self.max_log_scale > 0:
+            raise ValueError(f"GainSpace.max_log_scale must be > 0; got {self.max_log_scale}")
+
+    def split(self, name: str) -> tuple[str, str]:
+        task, _, kind = name.partition(".")
+        return task, kind
+
+    def check(self, base_gains: dict) -> None:
+        """Raise if a tuned gain names a task the controller does not have."""
+        for name in self.tuned:
+            task, _ = self.split(name)
+            if task not in base_gains:
+                raise ValueError(
+                    f"GainSpace.tuned: no task {task!r} in the controller; tasks are "
+                    f"{sorted(base_gains)}"
+                )
+
+    def init(self, base_gains: dict, dtype=None) -> dict:
+        """The parameters at the hand-set gains: all log-scales zero (dtype: JAX's default)."""
+        self.check(base_gains)
+        out = {}
+        for name in self.tuned:
+            task, kind = self.split(name)
+            size = np.shape(base_gains[task][kind])[0] if self.per_row else 1
+            out[name] = jnp.zeros(size, dtype)
+        return out
+
+    def gains(self, params: dict, base_gains: dict) -> dict:
+        """The WBLC gains pytree for ``params`` (differentiable)."""
+        self.check(base_gains)
+        gains = {task: dict(g) for task, g in base_gains.items()}
+        for name in self.tuned:
+            task, kind = self.split(name)
+            s = jnp.clip(params[name], -self.max_log_scale, self.max_log_scale)
+            base = jnp.asarray(gains[task][kind])
+            gains[task][kind] = base * jnp.exp(s).astype(base.dtype)
+        return gains
+
+
+def tuned_values(space: GainSpace, params: dict, base_gains: dict) -> dict:
+    """``{task: {"kp": [...], "kd": [...]}}`` of the tuned tasks, as plain lists."""
+    gains = space.gains(params, base_gains)
+    tasks = sorted({space.split(n)[0] for n in space.tuned})
+    return {t: {k: np.asarray(gains[t][k], float).tolist() for k in GAIN_KINDS} for t in tasks}

@@ -1,0 +1,201 @@
+"""The tuning loop: optax over a loss of the gain parameters, with safety checks.
+
+:func:`tune` minimises ``loss_fn(params) -> (loss, aux)`` with
+
+- ``adam``: Adam after clipping the gradient's global norm (``clip_norm``);
+- ``lbfgs``: optax's L-BFGS with a backtracking (Armijo) line search, which needs loss
+  values only, not gradients, at its trial points; each trial is one more rollout, so an
+  iteration costs several (worth it on smooth, small problems).
+
+Gradients (``gradient``): ``forward`` (default) pushes one tangent per parameter through
+the rollout with ``jax.jvp`` (vmapped; the primal is computed once): cost ~ (1 + P)
+rollouts for P parameters, memory independent of the horizon, and XLA compiles it in
+about 2 minutes here. ``reverse`` is ``jax.value_and_grad``: cost independent of P, but on
+CPU XLA took over 14 minutes to compile the reverse pass of a WBLC + ``mjx.step`` rollout
+(measured; see ``benchmarks/bench_tuning.py``), so it pays only for many parameters.
+
+Every iteration checks the loss and the gradient: a non-finite value, or a gradient norm
+above ``max_grad_norm``, stops the loop with :class:`TuningDiverged` naming the iteration
+and what went wrong (the parameters of the last good iteration are attached). The loop
+keeps the best parameters seen and a history (loss, aux terms, gradient norm, wall time),
+shows a progress bar, and calls ``callback(record)`` each iteration (e.g. to checkpoint).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import optax
+from jax.flatten_util import ravel_pytree
+from tqdm.auto import tqdm
+
+
+@dataclasses.dataclass(frozen=True)
+class TuneConfig:
+    method: str = "adam"
+    """``adam`` or ``lbfgs``."""
+    gradient: str = "forward"
+    """``forward`` (jvp per parameter) or ``reverse`` (backpropagation)."""
+    iterations: int = 30
+    learning_rate: float = 0.05
+    """Adam's step (in log-gain units: 0.05 is a ~5% change of a gain)."""
+    clip_norm: float = 1.0
+    """Adam: clip the gradient to this global norm before the update."""
+    max_grad_norm: float = 1e6
+    """A gradient larger than this stops the loop (exploding gradients)."""
+    tolerance: float = 0.0
+    """Stop when the loss improves by less than this over ``patience`` iterations (0: off)."""
+    patience: int = 5
+    max_line_search: int = 12
+    """L-BFGS: most backtracking halvings per iteration."""
+
+    def __post_init__(self):
+        if self.method not in ("adam", "lbfgs"):
+            raise ValueError(f"TuneConfig.method must be 'adam' or 'lbfgs'; got {self.method!r}")
+        if self.gradient not in ("forward", "reverse"):
+            raise ValueError(
+                f"TuneConfig.gradient must be 'forward' or 'reverse'; got {self.gradient!r}"
+            )
+        if self.iterations < 1:
+            raise ValueError(f"TuneConfig.iterations must be >= 1; got {self.iterations}")
+        for name in ("learning_rate", "clip_norm", "max_grad_norm"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"TuneConfig.{name} must be > 0; got {getattr(self, name)}")
+        if self.tolerance < 0 or self.patience < 1:
+            raise ValueError("TuneConfig.tolerance must be >= 0 and patience >= 1")
+
+
+class TuningDiverged(RuntimeError):
+    """The loss or its gradient went non-finite or exploded; ``last_good`` holds the
+    parameters of the last iteration that was fine."""
+
+    def __init__(self, message: str, last_good, history: list):
+        super().__init__(message)
+        self.last_good = last_good
+        self.history = history
+
+
+@dataclasses.dataclass
+class TuneResult:
+    params: object
+    """The parameters with the lowest loss seen."""
+    best_loss: float
+    history: list
+    """One dict per iteration: loss, aux terms, grad_norm, wall_s."""
+    stopped: str
+    """Why the loop ended: ``iterations`` or ``converged``."""
+
+
+def value_and_grad(loss_fn: Callable, mode: str = "forward") -> Callable:
+    """``params -> ((loss, aux), grads)`` for ``loss_fn(params) -> (loss, aux)`` by forward
+    (one ``jvp`` per parameter entry, vmapped) or reverse mode."""
+    if mode == "reverse":
+        return jax.value_and_grad(loss_fn, has_aux=True)
+    if mode != "forward":
+        raise ValueError(f"gradient mode must be 'forward' or 'reverse'; got {mode!r}")
+
+    def forward(params):
+        flat, unravel = ravel_pytree(params)
+
+        def along(tangent):
+            (loss, aux), (dloss, _) = jax.jvp(lambda x: loss_fn(unravel(x)), (flat,), (tangent,))
+            return loss, aux, dloss
+
+        basis = jnp.eye(flat.size, dtype=flat.dtype)
+        # The primal does not depend on the tangent, so vmap computes it once.
+        loss, aux, dflat = jax.vmap(along, out_axes=(None, None, 0))(basis)
+        return (loss, aux), unravel(dflat)
+
+    return forward
+
+
+def optimizer(cfg: TuneConfig) -> optax.GradientTransformation:
+    if cfg.method == "adam":
+        return optax.chain(optax.clip_by_global_norm(cfg.clip_norm), optax.adam(cfg.learning_rate))
+    return optax.lbfgs(
+        linesearch=optax.scale_by_backtracking_linesearch(
+            max_backtracking_steps=cfg.max_line_search
+        )
+    )
+
+
+def tune(
+    loss_fn: Callable,
+    params,
+    cfg: TuneConfig = TuneConfig(),
+    progress: bool | str = True,
+    callback: Callable[[dict], None] | None = None,
+    loss_and_grad: Callable | None = None,
+) -> TuneResult:
+    """Minimise ``loss_fn(params) -> (loss, aux)`` from ``params`` (see the module doc).
+
+    ``loss_and_grad``: an already jitted ``value_and_grad(loss_fn, cfg.gradient)`` to reuse
+    (its compile is most of a short run's time)."""
+    opt = optimizer(cfg)
+    if loss_and_grad is None:
+        loss_and_grad = jax.jit(value_and_grad(loss_fn, cfg.gradient))
+    plain_loss = jax.jit(lambda p: loss_fn(p)[0])
+
+    @jax.jit
+    def update(params, state, loss, grads):
+        if cfg.method == "lbfgs":
+            updates, state = opt.update(
+                grads, state, params, value=loss, grad=grads, value_fn=plain_loss
+            )
+        else:
+            updates, state = opt.update(grads, state, params)
+        return optax.apply_updates(params, updates), state
+
+    state = opt.init(params)
+    history, best, best_loss, stopped = [], params, np.inf, "iterations"
+    start = time.perf_counter()
+    bar = tqdm(
+        range(cfg.iterations),
+        desc=progress if isinstance(progress, str) else "tuning",
+        disable=not progress,
+    )
+    for it in bar:
+        (loss, aux), grads = loss_and_grad(params)
+        loss = float(loss)
+        grad_norm = float(optax.tree.norm(grads))
+        record = {
+            "iteration": it,
+            "loss": loss,
+            "grad_norm": grad_norm,
+            "wall_s": time.perf_counter() - start,
+            **{k: float(v) for k, v in aux.items() if np.ndim(v) == 0},
+            "params": jax.tree.map(lambda v: np.asarray(v).tolist(), params),
+        }
+        if not np.isfinite(loss):
+            raise TuningDiverged(
+                f"tuning: the loss is {loss} at iteration {it}; parameters there: "
+                f"{record['params']}",
+                best,
+                history,
+            )
+        if not np.isfinite(grad_norm) or grad_norm > cfg.max_grad_norm:
+            raise TuningDiverged(
+                f"tuning: gradient norm {grad_norm:.3g} at iteration {it} (limit "
+                f"max_grad_norm={cfg.max_grad_norm:g}); the loss is not smooth here: shorten "
+                "the horizon, average over more pushes or lower the learning rate",
+                best,
+                history,
+            )
+        history.append(record)
+        if callback is not None:
+            callback(record)
+        if loss < best_loss:
+            best, best_loss = params, loss
+        bar.set_postfix(loss=f"{loss:.4g}", best=f"{best_loss:.4g}", grad=f"{grad_norm:.2g}")
+        if cfg.tolerance > 0 and it >= cfg.patience:
+            if history[it - cfg.patience]["loss"] - best_loss < cfg.tolerance:
+                stopped = "converged"
+                break
+        params, state = update(params, state, jnp.asarray(loss), grads)
+    bar.close()
+    return TuneResult(best, float(best_loss), history, stopped)

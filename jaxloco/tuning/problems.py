@@ -1,0 +1,142 @@
+"""Tuning problems: a differentiable loss of the tuned gains, built from a rollout.
+
+:func:`shaking_loss` is the body-shaking task of Fig. 10: Valkyrie in double support, the
+body frame following :func:`~jaxloco.control.shaking.shaking_reference`, optionally pushed
+on the pelvis (robustness: a batch of pushes is averaged). Its loss is
+
+    w_track * mean |e_body|^2  +  w_effort * mean |tau|^2 / tau_scale^2
+    + w_com * mean |com_xy - com_xy(0)|^2  +  w_fall * fraction of ticks fallen
+
+with every mean over time and over the batch of pushes. The CoM term is the smooth
+surrogate of falling the issue asks for (a pushed robot that falls first drifts away);
+``fallen`` itself has zero gradient and is there so a fall never looks like a good value.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+
+from jaxloco.control.presets import body_shaking_config
+from jaxloco.control.shaking import ShakingParams, shaking_reference
+from jaxloco.control.wblc import make_wblc
+from jaxloco.dynamics.model import keyframe_qpos
+from jaxloco.sim.mjx_loop import init_loop_state
+from jaxloco.sim.push import body_index
+from jaxloco.tuning.gains import GainSpace
+from jaxloco.tuning.rollout import check_differentiable, mean_costs
+
+
+@dataclasses.dataclass(frozen=True)
+class ShakingLossParams:
+    """The body-shaking tuning problem: what is simulated and how it is scored."""
+
+    hierarchy: str = "H2"
+    shaking: ShakingParams = ShakingParams()
+    horizon: float = 1.0
+    """Simulated seconds per loss evaluation."""
+    segment: int = 50
+    """Ticks per checkpointed segment (memory vs recompute, see :mod:`.rollout`)."""
+    pinv_rtol: float = 1e-3
+    """The hierarchy's rank threshold (as in ``experiments/body_shaking.py``)."""
+    track_weight: float = 1.0
+    effort_weight: float = 0.01
+    torque_scale: float = 300.0
+    """``|tau|`` is measured in units of this (N m): the effort term is O(1) near standing."""
+    com_weight: float = 10.0
+    fall_weight: float = 10.0
+    fall_height: float = 0.7
+
+    def __post_init__(self):
+        for name in ("horizon", "torque_scale"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ShakingLossParams.{name} must be > 0")
+        for name in ("track_weight", "effort_weight", "com_weight", "fall_weight"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"ShakingLossParams.{name} must be >= 0")
+        if self.segment < 1:
+            raise ValueError(f"ShakingLossParams.segment must be >= 1; got {self.segment}")
+
+
+def horizon_steps(model: mujoco.MjModel, params: ShakingLossParams) -> int:
+    """Ticks of the horizon, rounded up to a whole number of segments."""
+    steps = int(round(params.horizon / model.opt.timestep))
+    return max(params.segment, -(-steps // params.segment) * params.segment)
+
+
+def shaking_loss(
+    model: mujoco.MjModel, space: GainSpace, params: ShakingLossParams = ShakingLossParams()
+):
+    """``(loss_fn, init_params, base_gains)``.
+
+    ``loss_fn(gain_params, pushes) -> (loss, costs)``: ``pushes`` is ``(B, 4)`` rows
+    ``(magnitude N, direction rad, start s, duration s)`` on the pelvis, one rollout per row
+    (use a zero-magnitude row for no push); ``costs`` holds each term averaged over the
+    batch. ``model`` must be a physics model with one solver iteration
+    (:func:`~jaxloco.tuning.rollout.tuning_physics`).
+    """
+    check_differentiable(model)
+    ctrl = make_wblc(model, body_shaking_config(params.hierarchy, pinv_rtol=params.pinv_rtol))
+    mx = ctrl.mx
+    qpos0 = jnp.asarray(keyframe_qpos(model, "walk"))
+    d0 = mujoco.MjData(model)
+    d0.qpos[:] = np.asarray(qpos0)
+    mujoco.mj_forward(model, d0)
+    refs0 = ctrl.hold_references(qpos0)
+    com0 = ctrl.snapshot(qpos0, jnp.zeros(model.nv)).com
+    contact = jnp.ones(2)
+    base = ctrl.default_gains()
+    steps = horizon_steps(model, params)
+    pelvis = body_index(model, "pelvis")
+
+    def loss_fn(gain_params, pushes):
+        gains = space.gains(gain_params, base)
+        dtype = jax.tree.leaves(gain_params)[0].dtype
+        q0 = refs0["body_ori"].pos.astype(dtype)
+
+        def controller(t, qpos, qvel, prev):
+            quat, vel, acc = shaking_reference(params.shaking, q0, t)
+            refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
+            snap = ctrl.snapshot(qpos, qvel)
+            out = ctrl(qpos, qvel, refs, contact, gains=gains, previous=prev, snap=snap)
+            err = out.diagnostics.task_errors["body_ori"]
+            com = snap.com[:2]
+            costs = {
+                "track": err @ err,
+                "effort": (out.torques @ out.torques) / params.torque_scale**2,
+                "com": jnp.sum((com - com0[:2].astype(dtype)) ** 2),
+            }
+            return out.torques, out.qp_state, costs
+
+        def one(push):
+            state = init_loop_state(mx, qpos0.astype(dtype), ctrl.initial_qp_state(dtype))
+            final, costs = mean_costs(
+                mx,
+                controller,
+                state,
+                steps,
+                params.segment,
+                push[None, :],
+                pelvis,
+                params.fall_height,
+            )
+            # Fraction of the horizon spent fallen (fall_time is inf while standing).
+            duration = steps * model.opt.timestep
+            fallen = jnp.where(final.fell, 1.0 - final.fall_time / duration, 0.0)
+            costs["fallen"] = fallen.astype(dtype)
+            return costs
+
+        costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), jax.vmap(one)(pushes))
+        loss = (
+            params.track_weight * costs["track"]
+            + params.effort_weight * costs["effort"]
+            + params.com_weight * costs["com"]
+            + params.fall_weight * costs["fallen"]
+        )
+        return loss, costs
+
+    return loss_fn, space.init(base), base

@@ -1,0 +1,76 @@
+"""A differentiable closed-loop rollout in MJX: time-averaged costs, memory O(sqrt(horizon)).
+
+:func:`mean_costs` runs the same closed-loop tick as every MJX rollout
+(:func:`jaxloco.sim.mjx_loop.closed_loop_step`: controller, pushes, ``mjx.step``, falls
+frozen) and returns the time average of the scalar costs the controller logs. Reverse-mode
+gradients flow through it when the physics model has ``opt.iterations == 1`` (MJX's
+solver loop is a ``while_loop`` otherwise; :func:`tuning_physics` sets it).
+
+Memory: the ticks are scanned in segments of ``segment`` ticks, each segment under
+``jax.checkpoint``. The backward pass keeps one loop state per segment and recomputes a
+segment's ticks when it gets there, so memory grows as ``steps / segment + segment`` loop
+states instead of ``steps`` full sets of intermediates, at the price of one extra forward
+pass (``segment`` near ``sqrt(steps)`` minimises it).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import jax
+import jax.numpy as jnp
+import mujoco
+
+from jaxloco.sim.mjx_loop import LoopState, PhysicsParams, closed_loop_step, physics_model
+
+
+def tuning_physics(model: mujoco.MjModel, ls_iterations: int = 4) -> mujoco.MjModel:
+    """``model`` with the solver settings reverse-mode differentiation needs (one solver
+    iteration, eulerdamp off)."""
+    return physics_model(model, PhysicsParams(iterations=1, ls_iterations=ls_iterations))
+
+
+def check_differentiable(model: mujoco.MjModel) -> None:
+    if int(model.opt.iterations) != 1:
+        raise ValueError(
+            "reverse-mode gradients through mjx.step need model.opt.iterations == 1 (MJX's "
+            f"solver loop is a while_loop otherwise); got {model.opt.iterations}: build the "
+            "physics model with jaxloco.tuning.rollout.tuning_physics"
+        )
+
+
+def mean_costs(
+    mx,
+    controller: Callable,
+    state: LoopState,
+    steps: int,
+    segment: int = 50,
+    pushes=None,
+    push_body: int = 0,
+    fall_height: float = 0.5,
+) -> tuple[LoopState, dict]:
+    """Run ``steps`` ticks; return the final state and the time mean of every entry of the
+    controller's ``log`` (scalars: the per-tick costs).
+
+    ``controller(t, qpos, qvel, cstate) -> (torques, cstate, costs)``. ``steps`` must be a
+    multiple of ``segment``. Ticks after a fall add the frozen state's costs (the state
+    stops changing; see :func:`closed_loop_step`).
+    """
+    if steps < 1 or segment < 1 or steps % segment:
+        raise ValueError(
+            f"mean_costs: steps ({steps}) must be a positive multiple of segment ({segment})"
+        )
+    pushes = jnp.zeros((1, 4), state.data.qpos.dtype) if pushes is None else pushes
+
+    def tick(s, _):
+        s, log = closed_loop_step(mx, controller, s, pushes, push_body, fall_height)
+        log.pop("force", None)
+        return s, log
+
+    @jax.checkpoint
+    def run_segment(s, _):
+        s, logs = jax.lax.scan(tick, s, None, length=segment)
+        return s, jax.tree.map(lambda v: jnp.sum(v, axis=0), logs)
+
+    state, sums = jax.lax.scan(run_segment, state, None, length=steps // segment)
+    return state, jax.tree.map(lambda v: jnp.sum(v, axis=0) / steps, sums)
