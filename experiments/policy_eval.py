@@ -10,6 +10,7 @@ vs trained) and ``value_map.png`` (learned value over the state box, basin bound
 """
 
 import logging
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +28,7 @@ from jaxloco.learning.checkpoint import DEFAULT_POLICY, assets_dir, load_checkpo
 from jaxloco.learning.starts import uniform_states
 from jaxloco.planner import make_lookahead_policy, plan_steps, sample_com_trajectory
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.tuning.step_planner import GradientPlannerParams, make_gradient_policy
 from jaxloco.viz import plot_phase_portraits
 from jaxloco.viz.learning import plot_value_map
 
@@ -46,6 +48,12 @@ class PolicyEvalConfig:
     )
     """Post-impulse apex states for Fig. 6 (the first is the paper's)."""
     fig6_steps: int = 10
+    gradient_planner_horizons: list[int] = field(default_factory=lambda: [1, 2])
+    """Also evaluate the gradient-based step planner (jaxloco.tuning.step_planner) with
+    these look-ahead horizons ([]: skip it)."""
+    gradient_planner_iterations: int = 40
+    timing_repeats: int = 50
+    """Single-state decision time: median of this many jitted calls per policy."""
     value_map_resolution: int = 60
     value_map_yd: list[float] = field(default_factory=lambda: [0.0])
     dpi: int = 130
@@ -70,10 +78,15 @@ def run(cfg: PolicyEvalConfig, out_dir: Path) -> dict:
         "RL-PSP untrained": untrained.policy,
         "RL-PSP trained": trained.policy,
     }
-    basins = {}
+    for h in cfg.gradient_planner_horizons:
+        gp = GradientPlannerParams(horizon=int(h), iterations=cfg.gradient_planner_iterations)
+        name = f"gradient planner ({h}-step, Adam {gp.iterations} it. x {gp.num_starts} starts)"
+        policies[name] = make_gradient_policy(psp, gp)
+    basins, decision_us = {}, {}
     for name, policy in policies.items():
         steps = jax.jit(lambda s, p=policy: steps_survived(p, s, psp, cfg.num_steps))(states)
         basins[name] = float(jnp.mean(steps == cfg.num_steps))
+        decision_us[name] = 1e6 * _decision_seconds(policy, states[0], cfg.timing_repeats)
         log.info("survival basin %-40s %.3f", name, basins[name])
 
     # Fig. 6: sequential steps from pushed states, untrained vs trained.
@@ -108,17 +121,30 @@ def run(cfg: PolicyEvalConfig, out_dir: Path) -> dict:
         "checkpoint": str(path),
         "training_info": info,
         "survival_basin": basins,
+        "decision_time_us": decision_us,
         "num_states": cfg.num_states,
         "num_steps": cfg.num_steps,
     }
     write_json(out_dir / "basins.json", summary)
-    lines = ["| policy | survival basin |", "|---|---|"]
-    lines += [f"| {k} | {v:.3f} |" for k, v in basins.items()]
+    lines = ["| policy | survival basin | one decision (us, jitted, 1 state) |", "|---|---|---|"]
+    lines += [f"| {k} | {v:.3f} | {decision_us[k]:.0f} |" for k, v in basins.items()]
     (out_dir / "basins.md").write_text(
         f"Survival basin: fraction of {cfg.num_states} uniform apex states (Eq. 1 box) from "
         f"which the policy walks {cfg.num_steps} steps.\n\n" + "\n".join(lines) + "\n"
     )
     return summary
+
+
+def _decision_seconds(policy, state, repeats: int) -> float:
+    """Median wall time of one jitted single-state decision (after compile)."""
+    fn = jax.jit(policy)
+    jax.block_until_ready(fn(state))
+    samples = []
+    for _ in range(max(1, repeats)):
+        t0 = time.perf_counter()
+        jax.block_until_ready(fn(state))
+        samples.append(time.perf_counter() - t0)
+    return float(np.median(samples))
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="policy_eval")

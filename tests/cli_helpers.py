@@ -6,8 +6,9 @@ import sys
 
 
 def run_cli(args, tmp_path, timeout=600):
-    """``python -m jaxloco.cli ARGS hydra.run.dir=TMP/run`` with its own compile cache."""
-    env = dict(os.environ, JAXLOCO_CACHE_DIR=str(tmp_path / "xla"))
+    """``python -m jaxloco.cli ARGS hydra.run.dir=TMP/run``, sharing the test session's
+    compile cache (``JAXLOCO_CACHE_DIR``, set by ``conftest.py``)."""
+    env = dict(os.environ)
     return subprocess.run(
         [sys.executable, "-m", "jaxloco.cli", *args, f"hydra.run.dir={tmp_path / 'run'}"],
         cwd=tmp_path,

@@ -1,10 +1,21 @@
-"""Test configuration: float64 everywhere (precision matters in the reference checks), and
-``--runslow`` for the full-size end-to-end runs (CI runs their small versions)."""
+"""Test configuration: float64 everywhere (precision matters in the reference checks),
+``--runslow`` for the full-size end-to-end runs (CI runs their small versions), and one
+persistent XLA compilation cache for the session, so tests that build the same controller
+(walking, sweeps, experiments) compile it once. The cache lives in a fresh temporary
+folder: every session compiles from scratch, nothing carries over between runs."""
+
+import os
+import tempfile
 
 import jax
 import pytest
 
+from jaxloco.runtime import enable_compilation_cache
+
 jax.config.update("jax_enable_x64", True)
+_CACHE = tempfile.TemporaryDirectory(prefix="jaxloco-test-xla-")
+os.environ["JAXLOCO_CACHE_DIR"] = _CACHE.name  # experiments run in-process use it too
+enable_compilation_cache(_CACHE.name)
 
 
 def pytest_addoption(parser):

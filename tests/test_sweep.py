@@ -94,10 +94,8 @@ CI_SPEC = dict(
 def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path):
     """A real sweep (C backend): two pushes in chunks of 1 (stopped after one chunk, then
     resumed) and in one chunk of 2 give the same outcomes."""
-    from jaxloco.runtime import enable_compilation_cache
     from jaxloco.sweep import run_sweep, write_report
 
-    enable_compilation_cache(tmp_path / "xla")  # the three runs share their compiles
     spec = SweepSpec(**CI_SPEC)
     a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, max_chunks=1)
     assert a.complete.tolist() == [True, False]

@@ -139,6 +139,9 @@ def test_policy_eval_cli_ci_sized(tmp_path):
             "policy-eval",
             "num_states=128",
             "num_steps=10",
+            "gradient_planner_horizons=[1]",
+            "gradient_planner_iterations=5",
+            "timing_repeats=3",
             "fig6_steps=3",
             "value_map_resolution=8",
             "dpi=50",
@@ -147,7 +150,10 @@ def test_policy_eval_cli_ci_sized(tmp_path):
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = tmp_path / "run"
-    basins = json.loads((run / "basins.json").read_text())["survival_basin"]
-    assert len(basins) == 4 and all(0.0 <= v <= 1.0 for v in basins.values())
+    summary = json.loads((run / "basins.json").read_text())
+    basins = summary["survival_basin"]
+    assert len(basins) == 5 and all(0.0 <= v <= 1.0 for v in basins.values())
+    assert any(k.startswith("gradient planner (1-step") for k in basins)
+    assert all(v > 0 for v in summary["decision_time_us"].values())
     for name in ("fig6_pushed_steps.png", "value_map.png", "basins.md"):
         assert (run / name).stat().st_size > 0

@@ -41,9 +41,9 @@ class TuneConfig:
     """``adam`` or ``lbfgs``."""
     gradient: str = "forward"
     """``forward`` (jvp per parameter) or ``reverse`` (backpropagation)."""
-    iterations: int = 30
-    learning_rate: float = 0.05
-    """Adam's step (in log-gain units: 0.05 is a ~5% change of a gain)."""
+    iterations: int = 20
+    learning_rate: float = 0.1
+    """Adam's step (in log-gain units: 0.1 is a ~10% change of a gain)."""
     clip_norm: float = 1.0
     """Adam: clip the gradient to this global norm before the update."""
     max_grad_norm: float = 1e6

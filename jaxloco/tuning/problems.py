@@ -35,12 +35,15 @@ from jaxloco.tuning.rollout import check_differentiable, mean_costs
 class ShakingLossParams:
     """The body-shaking tuning problem: what is simulated and how it is scored."""
 
-    hierarchy: str = "H2"
-    shaking: ShakingParams = ShakingParams()
+    hierarchy: str = "H1"
+    """Eq. 32's H1 (stable in our reproduction) or H2 (its 5 s shaking diverges; tuning
+    its body gains lowered the held-out error from 1.19 to 0.77 rad RMS, not a fix)."""
     horizon: float = 1.0
     """Simulated seconds per loss evaluation."""
-    segment: int = 50
-    """Ticks per checkpointed segment (memory vs recompute, see :mod:`.rollout`)."""
+    segment: int = 1
+    """Ticks per checkpointed segment (memory vs recompute, see :mod:`.rollout`). Reverse
+    mode only; 1 (every tick checkpointed) because with 50, XLA's compile of the reverse
+    pass ran over 14 minutes on CPU and was stopped (1: about 3 minutes; measured)."""
     pinv_rtol: float = 1e-3
     """The hierarchy's rank threshold (as in ``experiments/body_shaking.py``)."""
     track_weight: float = 1.0
@@ -69,7 +72,10 @@ def horizon_steps(model: mujoco.MjModel, params: ShakingLossParams) -> int:
 
 
 def shaking_loss(
-    model: mujoco.MjModel, space: GainSpace, params: ShakingLossParams = ShakingLossParams()
+    model: mujoco.MjModel,
+    space: GainSpace,
+    params: ShakingLossParams = ShakingLossParams(),
+    shaking: ShakingParams = ShakingParams(),
 ):
     """``(loss_fn, init_params, base_gains)``.
 
@@ -99,7 +105,7 @@ def shaking_loss(
         q0 = refs0["body_ori"].pos.astype(dtype)
 
         def controller(t, qpos, qvel, prev):
-            quat, vel, acc = shaking_reference(params.shaking, q0, t)
+            quat, vel, acc = shaking_reference(shaking, q0, t)
             refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
             snap = ctrl.snapshot(qpos, qvel)
             out = ctrl(qpos, qvel, refs, contact, gains=gains, previous=prev, snap=snap)

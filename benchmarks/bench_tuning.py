@@ -1,0 +1,107 @@
+"""Cost of a gradient through the closed loop, against a forward rollout of the same horizon.
+
+    python benchmarks/bench_tuning.py [--json PATH] [--quick]
+
+The body-shaking tuning problem (:func:`jaxloco.tuning.problems.shaking_loss`: WBLC H2 +
+``mjx.step`` with one solver iteration, float32), the four gains the default
+``tune-gains`` run tunes, one rollout (no push), horizon 1000 ticks = 1 s (``--quick``:
+200). In the same run:
+
+- **forward**: the loss alone (the baseline);
+- **grad (forward mode)**: :func:`jaxloco.tuning.optimize.value_and_grad` with
+  ``"forward"``: one ``jvp`` tangent per parameter, vmapped;
+- **grad (reverse mode)**: ``jax.value_and_grad`` with every tick checkpointed (segment 1).
+
+Per row: XLA compile time (AOT ``lower().compile()``), steady-state time per call, the
+ratio to the forward rollout, and XLA's buffer sizes for the compiled call
+(``memory_analysis``: temporaries, the peak working memory, and arguments + outputs).
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from _common import compile_seconds, parse_args, print_table, time_calls, write_json  # noqa: E402
+
+from jaxloco.dynamics.model import load_valkyrie  # noqa: E402
+from jaxloco.runtime import enable_compilation_cache, watchdog  # noqa: E402
+from jaxloco.tuning.gains import GainSpace  # noqa: E402
+from jaxloco.tuning.optimize import value_and_grad  # noqa: E402
+from jaxloco.tuning.problems import ShakingLossParams, shaking_loss  # noqa: E402
+from jaxloco.tuning.rollout import tuning_physics  # noqa: E402
+
+TUNED = ("body_ori.kp", "body_ori.kd", "pelvis_ori.kp", "pelvis_ori.kd")
+
+
+def main() -> None:
+    args = parse_args(__doc__.splitlines()[0])
+    enable_compilation_cache()
+    steps = 200 if args.quick else 1000
+    repeats = 2 if args.quick else 3
+    model = tuning_physics(load_valkyrie())
+    space = GainSpace(TUNED)
+    problem = ShakingLossParams(horizon=steps * model.opt.timestep, segment=1)
+    loss, p0, _ = shaking_loss(model, space, problem)
+    pushes = jnp.zeros((1, 4), jnp.float32)
+
+    def fn(p):
+        return loss(p, pushes)
+
+    variants = {
+        "forward": jax.jit(lambda p: fn(p)[0]),
+        "grad (forward mode)": jax.jit(value_and_grad(fn, "forward")),
+        "grad (reverse mode)": jax.jit(value_and_grad(fn, "reverse")),
+    }
+    rows = []
+    with watchdog(args.timeout, "bench_tuning"):
+        for name, jitted in variants.items():
+            compile_s, compiled = compile_seconds(jitted, p0)
+            mem = compiled.memory_analysis()
+            t = time_calls(compiled, p0, repeats=repeats, warmup=1)
+            row = {
+                "variant": name,
+                "ticks": steps,
+                "params": len(TUNED),
+                "compile_s": compile_s,
+                "time_s": t["median_s"],
+                "ms_per_tick": 1e3 * t["median_s"] / steps,
+                "temp_MB": getattr(mem, "temp_size_in_bytes", 0) / 1e6 if mem else None,
+                "args_out_MB": (
+                    (mem.argument_size_in_bytes + mem.output_size_in_bytes) / 1e6 if mem else None
+                ),
+                "timing": t,
+            }
+            rows.append(row)
+            print(f"{name}: compile {compile_s:.0f} s, {t['median_s']:.2f} s per call", flush=True)
+    base = rows[0]["time_s"]
+    for r in rows:
+        r["ratio_to_forward"] = r["time_s"] / base
+    print_table(
+        f"Gradient cost vs forward rollout (body shaking, {steps} ticks, 1 robot, float32)",
+        rows,
+        [
+            ("variant", "variant", "s"),
+            ("compile_s", "compile s", ".1f"),
+            ("time_s", "s/call", ".3f"),
+            ("ms_per_tick", "ms/tick", ".2f"),
+            ("ratio_to_forward", "x forward", ".2f"),
+            ("temp_MB", "temp MB", ".1f"),
+            ("args_out_MB", "args+out MB", ".2f"),
+        ],
+    )
+    write_json(
+        args.json,
+        "tuning",
+        {"ticks": steps, "params": list(TUNED), "rows": rows, "target_ratio": 5.0},
+    )
+
+
+if __name__ == "__main__":
+    main()
