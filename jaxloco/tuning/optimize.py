@@ -8,11 +8,12 @@
   iteration costs several (worth it on smooth, small problems).
 
 Gradients (``gradient``): ``forward`` (default) pushes one tangent per parameter through
-the rollout with ``jax.jvp`` (vmapped; the primal is computed once): cost ~ (1 + P)
-rollouts for P parameters, memory independent of the horizon, and XLA compiles it in
-about 2 minutes here. ``reverse`` is ``jax.value_and_grad``: cost independent of P, but on
-CPU XLA took over 14 minutes to compile the reverse pass of a WBLC + ``mjx.step`` rollout
-(measured; see ``benchmarks/bench_tuning.py``), so it pays only for many parameters.
+the rollout with ``jax.jvp`` (vmapped; the primal is computed once). It costs about (1 + P)
+rollouts for P parameters, needs memory independent of the horizon, and XLA compiled it in
+81-105 s here (4 gains, float32). ``reverse`` is ``jax.value_and_grad``: its cost does not
+grow with P, but XLA took 200 s to compile the reverse pass of a WBLC + ``mjx.step``
+rollout (1-tick checkpoints). With 4 gains it ran slightly slower than forward mode, so it
+pays only for many parameters (measured, ``benchmarks/bench_tuning.py``).
 
 Every iteration checks the loss and the gradient: a non-finite value, or a gradient norm
 above ``max_grad_norm``, stops the loop with :class:`TuningDiverged` naming the iteration

@@ -19,7 +19,6 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import mujoco
-import numpy as np
 
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams, shaking_reference
@@ -43,7 +42,7 @@ class ShakingLossParams:
     segment: int = 1
     """Ticks per checkpointed segment (memory vs recompute, see :mod:`.rollout`). Reverse
     mode only; 1 (every tick checkpointed) because with 50, XLA's compile of the reverse
-    pass ran over 14 minutes on CPU and was stopped (1: about 3 minutes; measured)."""
+    pass ran over 14 minutes on CPU and was stopped (1: 200 s; measured)."""
     pinv_rtol: float = 1e-3
     """The hierarchy's rank threshold (as in ``experiments/body_shaking.py``)."""
     track_weight: float = 1.0
@@ -89,9 +88,6 @@ def shaking_loss(
     ctrl = make_wblc(model, body_shaking_config(params.hierarchy, pinv_rtol=params.pinv_rtol))
     mx = ctrl.mx
     qpos0 = jnp.asarray(keyframe_qpos(model, "walk"))
-    d0 = mujoco.MjData(model)
-    d0.qpos[:] = np.asarray(qpos0)
-    mujoco.mj_forward(model, d0)
     refs0 = ctrl.hold_references(qpos0)
     com0 = ctrl.snapshot(qpos0, jnp.zeros(model.nv)).com
     contact = jnp.ones(2)
