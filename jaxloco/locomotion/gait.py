@@ -9,8 +9,8 @@ Pure JAX state (:class:`GaitState`) advanced once per control tick by :func:`adv
 - ``WALK``: one single-support step after another. A step begins at a touch-down (or at
   the first lift-off): the new stance foot's contact blends in and the old one's blends out
   over ``contact_blend`` seconds (the force QP's normal-force bound ramps, Section III),
-  then the old stance foot swings along a cubic B-spline (:mod:`.swing`) to the planned
-  footstep and lands at the planned switch time, which begins the next step.
+  then the old stance foot swings (:mod:`.swing`: B-spline height, quintic ground path)
+  to the planned footstep and lands at the planned switch time, which begins the next step.
 
 **Planning.** At the start of each step, the desired CoM state is expressed in the new
 stance frame (origin at the stance foot, x along the step's heading, y mirrored towards
@@ -25,7 +25,9 @@ constant height ``psp.h`` above it.
 above ``replan_threshold`` for longer than ``replan_delay`` during a swing, the step is
 planned again from ``x_new = gamma x_d + (1 - gamma) x`` (position and velocity), the CoM
 reference restarts there, and the swing foot moves from its current desired position,
-velocity and acceleration to the new footstep (no jump).
+velocity and acceleration to the new footstep (no jump; :func:`.swing.retarget_swing`).
+A capture step (below) keeps its touch-down time when it is re-planned: only its target
+moves.
 
 Plans that have no solution (``INFEASIBLE`` reasons) fall back to a capture step
 (:func:`capture_step`) and are counted in ``GaitState.failed_plans``; footsteps are
@@ -44,7 +46,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxloco.dynamics import se3
-from jaxloco.locomotion.swing import SwingSpline, make_swing
+from jaxloco.locomotion.swing import SwingSpline, make_swing, quintic, retarget_swing
 from jaxloco.planner import lipm
 from jaxloco.planner.psp import INFEASIBLE, PSPParams, plan_apex_components
 from jaxloco.planner.steering import local_to_world, world_to_local
@@ -228,27 +230,6 @@ def _smoothstep(u):
         jnp.where(inside, 6 * u - 6 * u**2, 0.0),
         jnp.where(inside, 6 - 12 * u, 0.0),
     )
-
-
-def quintic(p0, v0, a0, p1, v1, a1, duration, t):
-    """Quintic from (p0, v0, a0) at 0 to (p1, v1, a1) at ``duration``; held after it.
-
-    Returns position, velocity and acceleration at ``t``.
-    """
-    T = duration
-    tc = jnp.clip(t, 0.0, T)
-    c0, c1, c2 = p0, v0, a0 / 2
-    d = p1 - (c0 + c1 * T + c2 * T**2)
-    e = v1 - (c1 + 2 * c2 * T)
-    f = a1 - 2 * c2
-    c3 = (10 * d - 4 * e * T + 0.5 * f * T**2) / T**3
-    c4 = (-15 * d + 7 * e * T - f * T**2) / T**4
-    c5 = (6 * d - 3 * e * T + 0.5 * f * T**2) / T**5
-    pos = c0 + c1 * tc + c2 * tc**2 + c3 * tc**3 + c4 * tc**4 + c5 * tc**5
-    vel = c1 + 2 * c2 * tc + 3 * c3 * tc**2 + 4 * c4 * tc**3 + 5 * c5 * tc**4
-    acc = 2 * c2 + 6 * c3 * tc + 12 * c4 * tc**2 + 20 * c5 * tc**3
-    after = t > T
-    return pos, jnp.where(after, v1, vel), jnp.where(after, a1, acc)
 
 
 def _lateral_sign(stance):
@@ -476,6 +457,15 @@ def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
     new_pos = g * ref_pos[:2] + (1 - g) * com[:2]
     new_vel = g * ref_vel[:2] + (1 - g) * com_vel[:2]
     elapsed = t - state.step_start
+    # A capture step already under way keeps its touch-down time (only its target moves):
+    # restarting the fallback clock at every replan would postpone the landing as long as
+    # the error stays large, which is exactly when the foot must come down.
+    in_fallback = (state.last_reason & int(INFEASIBLE)) != 0
+    fallback_remaining = jnp.where(
+        in_fallback,
+        jnp.maximum(state.step_duration - elapsed, params.replan_min_remaining),
+        jnp.clip(params.fallback_duration - elapsed, params.replan_min_remaining + 0.1, None),
+    )
     duration, foot_xy, apex, action, reason, failed = _plan(
         params,
         psp,
@@ -485,20 +475,18 @@ def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
         state.stance_pos,
         state.heading,
         state.lateral_sign,
-        jnp.clip(params.fallback_duration - elapsed, params.replan_min_remaining + 0.1, None),
+        fallback_remaining,
         state.apex_speed_cap,
     )
     remaining = jnp.clip(duration, params.replan_min_remaining, params.max_step_duration)
     target = jnp.append(foot_xy, state.stance_pos[2])
-    pos, vel, acc = state.swing.evaluate(t)
-    swing = make_swing(
-        pos,
-        target,
+    pos = state.swing.evaluate(t)[0]
+    swing = retarget_swing(
+        state.swing,
         t,
+        target,
         remaining,
         jnp.maximum(pos[2], target[2] + params.swing_height * jnp.clip(remaining / 0.3, 0.0, 1.0)),
-        vel,
-        acc,
     )
     return state.replace(
         step_duration=elapsed + remaining,

@@ -1,14 +1,22 @@
-"""Swing-foot trajectories: clamped cubic B-splines (acceleration continuous).
+"""Swing-foot trajectories: a cubic B-spline for the height, a quintic for the ground path.
 
 Paper Section V-B: "third degree B-splines, which guarantee acceleration continuity"; the
 authors' code drove the foot through a mid-point 0.1 m above the ground
 (``shared/reference/paper-details.md``).
 
-A swing is 7 control points on the clamped uniform knot vector ``(0,0,0,0, 1/4, 1/2, 3/4,
-1,1,1,1)`` in normalised time ``u = (t - t0) / T``. The first three control points fix the
-start position, velocity and acceleration (so a swing re-planned mid-air continues from
-the old one without a jump in position, velocity or acceleration); the last three fix the
-end at rest on the target; the middle one sets the height at ``u = 1/2``.
+- Height: 7 control points on the clamped uniform knot vector ``(0,0,0,0, 1/4, 1/2, 3/4,
+  1,1,1,1)`` in normalised time ``u = (t - t0) / T``. The first three fix the start height,
+  vertical velocity and acceleration, the last three the landing at rest, the middle one
+  the height at ``u = 1/2``.
+- Ground path (x, y): a quintic from the start position, velocity and acceleration to the
+  target at rest at ``t0 + T``: minimum jerk, and *time-consistent*: re-planning it from
+  any point of itself to the same target and landing time gives back the same path. That
+  is what a swing re-planned every few ticks (Eq. 33-34 after a push) needs. A B-spline
+  refitted the same way is not: each refit speeds the foot up, and replans 20 ms apart
+  compounded into a 7 m/s reference 15 cm past its target after a 520 N push (measured).
+
+A swing re-planned mid-air continues from the old one without a jump in position, velocity
+or acceleration.
 """
 
 from __future__ import annotations
@@ -61,11 +69,36 @@ _START = np.asarray(basis_derivatives(0.0), np.float64)[:, :3]
 _MID = np.asarray(basis(0.5), np.float64)
 
 
+def quintic(p0, v0, a0, p1, v1, a1, duration, t):
+    """Quintic from (p0, v0, a0) at 0 to (p1, v1, a1) at ``duration``; held after it.
+
+    Returns position, velocity and acceleration at ``t``.
+    """
+    T = duration
+    tc = jnp.clip(t, 0.0, T)
+    c0, c1, c2 = p0, v0, a0 / 2
+    d = p1 - (c0 + c1 * T + c2 * T**2)
+    e = v1 - (c1 + 2 * c2 * T)
+    f = a1 - 2 * c2
+    c3 = (10 * d - 4 * e * T + 0.5 * f * T**2) / T**3
+    c4 = (-15 * d + 7 * e * T - f * T**2) / T**4
+    c5 = (6 * d - 3 * e * T + 0.5 * f * T**2) / T**5
+    pos = c0 + c1 * tc + c2 * tc**2 + c3 * tc**3 + c4 * tc**4 + c5 * tc**5
+    vel = c1 + 2 * c2 * tc + 3 * c3 * tc**2 + 4 * c4 * tc**3 + 5 * c5 * tc**4
+    acc = 2 * c2 + 6 * c3 * tc + 12 * c4 * tc**2 + 20 * c5 * tc**3
+    after = t > T
+    return pos, jnp.where(after, v1, vel), jnp.where(after, a1, acc)
+
+
 @struct.dataclass
 class SwingSpline:
-    """A swing trajectory: ``control_points`` (7, 3), start time ``t0`` and ``duration``."""
+    """A swing from ``t0`` to ``t0 + duration``: the height's B-spline ``height_points``
+    (7,), the ground path's start ``ground_start`` (3, 2: position, velocity,
+    acceleration) and the landing point ``target`` (3,)."""
 
-    control_points: jax.Array
+    height_points: jax.Array
+    ground_start: jax.Array
+    target: jax.Array
     t0: jax.Array
     duration: jax.Array
 
@@ -75,38 +108,46 @@ class SwingSpline:
         u = jnp.clip((t - self.t0) / duration, 0.0, 1.0)
         b = basis_derivatives(u)
         inside = (t >= self.t0) & (t <= self.t0 + duration)
-        pos = b[0] @ self.control_points
-        vel = jnp.where(inside, b[1] @ self.control_points / duration, 0.0)
-        acc = jnp.where(inside, b[2] @ self.control_points / duration**2, 0.0)
-        return pos, vel, acc
-
-    @property
-    def target(self):
-        return self.control_points[-1]
+        z = b[0] @ self.height_points
+        zd = jnp.where(inside, b[1] @ self.height_points / duration, 0.0)
+        zdd = jnp.where(inside, b[2] @ self.height_points / duration**2, 0.0)
+        zero = jnp.zeros(2, self.target.dtype)
+        g = self.ground_start
+        xy, xyd, xydd = quintic(
+            g[0], g[1], g[2], self.target[:2], zero, zero, duration, t - self.t0
+        )
+        before = t < self.t0
+        xyd = jnp.where(before, 0.0, xyd)
+        xydd = jnp.where(before, 0.0, xydd)
+        return jnp.append(xy, z), jnp.append(xyd, zd), jnp.append(xydd, zdd)
 
 
 def make_swing(start_pos, target, t0, duration, mid_height, start_vel=None, start_acc=None):
     """A swing from ``start_pos`` (moving at ``start_vel``, ``start_acc``: default at rest)
-    to ``target`` at rest, with height ``mid_height`` (absolute z) at half time.
-
-    The horizontal path's middle control point sits halfway between its neighbours.
-    """
+    to ``target`` at rest after ``duration`` s, with height ``mid_height`` (absolute z) at
+    half time."""
     start_pos, target = jnp.asarray(start_pos), jnp.asarray(target)
     dtype = start_pos.dtype
+    target = target.astype(dtype)
     duration = jnp.maximum(jnp.asarray(duration, dtype), 1e-3)
     zero = jnp.zeros(3, dtype)
-    vel = zero if start_vel is None else jnp.asarray(start_vel, dtype) * duration
-    acc = zero if start_acc is None else jnp.asarray(start_acc, dtype) * duration**2
+    vel = zero if start_vel is None else jnp.asarray(start_vel, dtype)
+    acc = zero if start_acc is None else jnp.asarray(start_acc, dtype)
     s = jnp.asarray(_START, dtype)
-    # Rows: s[0] @ P = pos (P0 = pos), s[1] @ P = vel, s[2] @ P = acc, over P0..P2.
-    p0 = start_pos
-    p1 = (vel - s[1, 0] * p0) / s[1, 1]
-    p2 = (acc - s[2, 0] * p0 - s[2, 1] * p1) / s[2, 2]
-    p4 = p5 = p6 = target
-    p3_xy = 0.5 * (p2[:2] + p4[:2])
+    # Height control points: s[0] @ P = z, s[1] @ P = zd T, s[2] @ P = zdd T^2 over P0..P2.
+    h0 = start_pos[2]
+    h1 = (vel[2] * duration - s[1, 0] * h0) / s[1, 1]
+    h2 = (acc[2] * duration**2 - s[2, 0] * h0 - s[2, 1] * h1) / s[2, 2]
     mid = jnp.asarray(_MID, dtype)
-    partial = mid[0] * p0 + mid[1] * p1 + mid[2] * p2 + (mid[4] + mid[5] + mid[6]) * target
-    p3_z = (mid_height - partial[2]) / mid[3]
-    p3 = jnp.concatenate([p3_xy, p3_z[None]])
-    points = jnp.stack([p0, p1, p2, p3, p4, p5, p6])
-    return SwingSpline(points, jnp.asarray(t0, dtype), duration)
+    partial = mid[0] * h0 + mid[1] * h1 + mid[2] * h2 + (mid[4] + mid[5] + mid[6]) * target[2]
+    h3 = (mid_height - partial) / mid[3]
+    height = jnp.stack([h0, h1, h2, h3, target[2], target[2], target[2]])
+    ground = jnp.stack([start_pos[:2], vel[:2], acc[:2]])
+    return SwingSpline(height, ground, target, jnp.asarray(t0, dtype), duration)
+
+
+def retarget_swing(old: SwingSpline, t, target, duration, mid_height) -> SwingSpline:
+    """``old`` re-planned at time ``t`` to land on ``target`` after ``duration`` s,
+    continuing from its position, velocity and acceleration."""
+    pos, vel, acc = old.evaluate(t)
+    return make_swing(pos, target, t, duration, mid_height, vel, acc)
