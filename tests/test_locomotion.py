@@ -56,7 +56,7 @@ def test_retargeted_swing_is_time_consistent_and_does_not_compound():
     ts = jnp.linspace(0.3, 0.6, 50)
     # Re-planned to the same target and landing time: the same ground path.
     same = retarget_swing(swing, 0.3, swing.target, 0.3, 0.1)
-    for a, b in zip(jax.vmap(swing.evaluate)(ts), jax.vmap(same.evaluate)(ts)):
+    for a, b in zip(jax.vmap(swing.evaluate)(ts), jax.vmap(same.evaluate)(ts), strict=True):
         np.testing.assert_allclose(a[:, :2], b[:, :2], atol=1e-12)
     # Re-planned every 20 ms towards a target a little further on, as after a push. The
     # B-spline refit this replaced doubled the speed at each replan (> 100 m/s by the 6th).
@@ -65,7 +65,7 @@ def test_retargeted_swing_is_time_consistent_and_does_not_compound():
         pos, vel, acc = swing.evaluate(t)
         target += 0.04
         new = retarget_swing(swing, t, jnp.array([target, 0.0, 0.0]), 0.6 - t, 0.1)
-        for got, want in zip(new.evaluate(t), (pos, vel, acc)):
+        for got, want in zip(new.evaluate(t), (pos, vel, acc), strict=True):
             np.testing.assert_allclose(got, want, atol=1e-9)
         xs, vs, _ = jax.vmap(new.evaluate)(jnp.linspace(t, 0.6, 200))
         assert float(jnp.max(xs[:, 0])) <= target + 1e-9  # never past the target
