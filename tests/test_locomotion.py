@@ -14,9 +14,9 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from jaxloco.dynamics import se3
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
-from jaxloco.locomotion import GaitParams, make_swing, make_walking_controller
+from jaxloco.locomotion import GaitParams, make_swing, make_walking_controller, retarget_swing
 from jaxloco.locomotion import gait as gait_lib
-from jaxloco.locomotion.swing import KNOTS, retarget_swing
+from jaxloco.locomotion.swing import KNOTS
 from jaxloco.planner import PSPParams
 from jaxloco.sim import mjx_loop
 from jaxloco.sim.push import Push, apply_push_c, body_index, push_force

@@ -1,8 +1,8 @@
-"""Walking on the full humanoid: gait state machine, swing splines, replanning, and the
+"""Walking on the full humanoid: gait state machine, swing trajectories, replanning, and the
 walking controller that drives WBLC with the learned step planner (paper Section V-B/C)."""
 
 from jaxloco.locomotion.gait import GaitParams, GaitReferences, GaitState
-from jaxloco.locomotion.swing import SwingSpline, make_swing
+from jaxloco.locomotion.swing import SwingSpline, make_swing, retarget_swing
 from jaxloco.locomotion.walking import WalkingController, WalkingState, make_walking_controller
 
 __all__ = [
@@ -14,4 +14,5 @@ __all__ = [
     "WalkingState",
     "make_swing",
     "make_walking_controller",
+    "retarget_swing",
 ]
