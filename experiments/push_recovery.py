@@ -13,6 +13,7 @@ replanned footsteps), ``push_recovery.json``/``.md`` (outcomes table, replanning
 15 steps) and one GIF per direction.
 """
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
@@ -27,16 +28,21 @@ from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
+from jaxloco.config import config_schema, to_params
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import plan_steps
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
 from jaxloco.sim.scenarios import local_com_states, simulate_walk
 
 log = logging.getLogger(__name__)
+
+GaitSchema = config_schema(GaitParams)
+PhysicsSchema = config_schema(PhysicsParams)
 
 
 @dataclass
@@ -51,7 +57,10 @@ class PushRecoveryConfig:
     steps_after: int = 3
     """Steps that must begin after the push for it to count as recovered."""
     compare_no_replan: bool = True
-    gait: GaitParams = field(default_factory=GaitParams)
+    gait: GaitSchema = field(default_factory=GaitSchema)
+    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
+    physics: PhysicsSchema = field(default_factory=PhysicsSchema)
+    """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
     videos: bool = True
     video_fps: int = 10
     timeout_s: float = 3600.0
@@ -100,18 +109,31 @@ def _outcome(res, push_time, steps_after):
 
 def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
     model = load_valkyrie()
-    variants = {"replan": cfg.gait}
+    physics = to_params(PhysicsParams, cfg.physics)
+    gait = to_params(GaitParams, cfg.gait)
+    variants = {"replan": gait}
     if cfg.compare_no_replan:
-        variants["no_replan"] = GaitParams(**{**cfg.gait.__dict__, "replan": False})
+        variants["no_replan"] = dataclasses.replace(gait, replan=False)
     ctrls = {k: make_walking_controller(model, gait=g) for k, g in variants.items()}
     results, runs = {}, {}
     with watchdog(cfg.timeout_s, "push-recovery"):
-        base = simulate_walk(model, ctrls["replan"], cfg.duration, progress="undisturbed")
+        base = simulate_walk(
+            model,
+            ctrls["replan"],
+            cfg.duration,
+            physics=physics,
+            progress="undisturbed",
+        )
         for name, ctrl in ctrls.items():
             for direction in cfg.directions_deg:
                 push = Push(cfg.magnitude, float(direction), cfg.push_time, cfg.push_duration)
                 res = simulate_walk(
-                    model, ctrl, cfg.duration, pushes=(push,), progress=f"{name} {direction} deg"
+                    model,
+                    ctrl,
+                    cfg.duration,
+                    pushes=(push,),
+                    physics=physics,
+                    progress=f"{name} {direction} deg",
                 )
                 runs[name, direction] = res
                 results.setdefault(name, {})[str(direction)] = _outcome(

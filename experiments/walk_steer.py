@@ -21,15 +21,20 @@ from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
+from jaxloco.config import config_schema, to_params
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import turn_schedule
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
 from jaxloco.sim.scenarios import local_com_states, simulate_walk
 
 log = logging.getLogger(__name__)
+
+GaitSchema = config_schema(GaitParams)
+PhysicsSchema = config_schema(PhysicsParams)
 
 
 @dataclass
@@ -42,7 +47,10 @@ class WalkSteerConfig:
     extra_steps: int = 2
     """Straight steps after the schedule before the run ends."""
     max_duration: float = 40.0
-    gait: GaitParams = field(default_factory=GaitParams)
+    gait: GaitSchema = field(default_factory=GaitSchema)
+    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
+    physics: PhysicsSchema = field(default_factory=PhysicsSchema)
+    """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
     video: bool = True
     video_fps: int = 10
     timeout_s: float = 1800.0
@@ -55,7 +63,7 @@ ConfigStore.instance().store(name="walk_steer", node=WalkSteerConfig)
 def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
     model = load_valkyrie()
     turns = turn_schedule([tuple(s) for s in cfg.segments])
-    ctrl = make_walking_controller(model, gait=cfg.gait)
+    ctrl = make_walking_controller(model, gait=to_params(GaitParams, cfg.gait))
     total = len(turns) + cfg.extra_steps
     with watchdog(cfg.timeout_s, "walk-steer"):
         res = simulate_walk(
@@ -65,6 +73,7 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
             turns=turns,
             pushes=tuple(cfg.pushes),
             max_steps=total,
+            physics=to_params(PhysicsParams, cfg.physics),
             progress="walk-steer",
         )
     o, t = res.log.outputs, res.log.time

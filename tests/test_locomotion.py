@@ -185,6 +185,21 @@ def test_push_force_window_and_direction():
     np.testing.assert_allclose(data.xfrc_applied[pelvis, :3], [0.0, 100.0, 0.0], atol=1e-9)
 
 
+def test_physics_params_torque_limit_clips_every_actuator():
+    model = load_valkyrie()
+    own = mjx_loop.physics_model(model, mjx_loop.PhysicsParams(torque_limit=None))
+    np.testing.assert_array_equal(own.actuator_ctrlrange, model.actuator_ctrlrange)
+    authors = mjx_loop.physics_model(model, mjx_loop.PhysicsParams(torque_limit=500.0))
+    np.testing.assert_allclose(authors.actuator_ctrlrange, [[-500.0, 500.0]] * model.nu)
+    assert model.actuator_ctrlrange[:, 1].max() < 500  # the model itself is untouched
+    data = mujoco.MjData(authors)
+    data.ctrl[:] = 1e4
+    mujoco.mj_forward(authors, data)
+    np.testing.assert_allclose(data.actuator_force, 500.0)
+    with pytest.raises(ValueError, match="torque_limit"):
+        mjx_loop.PhysicsParams(torque_limit=0.0)
+
+
 # --- closed loop ------------------------------------------------------------------------
 
 
