@@ -13,8 +13,10 @@ that tick on (its state stops changing; shapes stay static) and its fall time re
 Physics settings: :func:`physics_model` returns an MJX model with the solver settings
 the closed loop uses; the defaults (Newton, 100 iterations, 50 line-search iterations) are
 MJX's slowest; :class:`PhysicsParams` defaults to 2 iterations, 4 line-search steps and
-eulerdamp off. ``tests/test_locomotion.py`` checks that MJX and MuJoCo's C engine, both at
-these settings, give the same walking motion (it does not compare against the defaults).
+eulerdamp off, and clips every actuator at 500 N m as the paper's authors simulated
+(``torque_limit=None``: the model's own effort limits). ``tests/test_locomotion.py`` checks
+that MJX and MuJoCo's C engine, both at these settings, give the same walking motion (it
+does not compare against the defaults).
 """
 
 from __future__ import annotations

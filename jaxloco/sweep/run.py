@@ -73,7 +73,8 @@ def run_sweep(
     ``backend``: ``"c"`` (MuJoCo C batch + vmapped JAX controller) or ``"mjx"``.
     ``config``: the resolved experiment config, recorded in the manifest.
     ``max_chunks``: stop after this many new chunks (to split a long sweep over sessions).
-    ``physics``: solver settings of the simulated robot (default :class:`PhysicsParams`).
+    ``physics``: the simulated robot's solver settings and torque limit (default
+    :class:`PhysicsParams`).
     ``wblc``: the controller's WBLC configuration (default: the walking preset).
     """
     if backend not in BACKENDS:
