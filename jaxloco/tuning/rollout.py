@@ -26,10 +26,15 @@ import mujoco
 from jaxloco.sim.mjx_loop import LoopState, PhysicsParams, closed_loop_step, physics_model
 
 
-def tuning_physics(model: mujoco.MjModel, ls_iterations: int = 4) -> mujoco.MjModel:
+def tuning_physics(
+    model: mujoco.MjModel, ls_iterations: int = 4, torque_limit: float | None = None
+) -> mujoco.MjModel:
     """``model`` with the solver settings reverse-mode differentiation needs (one solver
-    iteration, eulerdamp off)."""
-    return physics_model(model, PhysicsParams(iterations=1, ls_iterations=ls_iterations))
+    iteration, eulerdamp off). ``torque_limit``: see :class:`PhysicsParams`; the default
+    keeps the model's own effort limits, which the body-shaking tuning and its held-out
+    check on MuJoCo C use."""
+    params = PhysicsParams(iterations=1, ls_iterations=ls_iterations, torque_limit=torque_limit)
+    return physics_model(model, params)
 
 
 def check_differentiable(model: mujoco.MjModel) -> None:
