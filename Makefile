@@ -40,7 +40,7 @@ test-all: $(STAMP)
 
 bench: $(STAMP)
 	-$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[bench]"
-	for b in planner learning dynamics wblc closed_loop tuning; do \
+	for b in planner learning dynamics wblc closed_loop sweep tuning; do \
 	  $(BIN)/python benchmarks/bench_$$b.py --json bench_results/bench_$$b.json || exit 1; done
 
 lint: $(STAMP)
