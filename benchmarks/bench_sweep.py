@@ -33,7 +33,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _common import compile_seconds, parse_args, print_table, time_calls, write_json  # noqa: E402
-from mujoco import batch as mj_batch  # noqa: E402
+from bench_closed_loop import bench_c_physics, bench_mjx_physics  # noqa: E402
 from mujoco import mjx, rollout  # noqa: E402
 
 from jaxloco.dynamics.model import load_valkyrie  # noqa: E402
@@ -80,39 +80,23 @@ def end_to_end(spec, backend, root: Path) -> dict:
     }
 
 
-def physics_alone(sim_model, states, steps) -> dict:
-    n = len(states)
-    out = {}
+def physics_alone(sim_model, starts, steps) -> dict:
+    """Env-steps/s of ``mujoco.rollout`` on 2 threads and of the ``mujoco.batch`` pool."""
+    n = len(starts.times)
     datas = [mujoco.MjData(sim_model) for _ in range(2)]
     # rollout takes mjSTATE_FULLPHYSICS; the sweep keeps mjSTATE_INTEGRATION.
     full = mujoco.mjtState.mjSTATE_FULLPHYSICS
     initial = np.zeros((n, mujoco.mj_stateSize(sim_model, full)))
-    for k, row in enumerate(states):
+    for k, row in enumerate(starts.physics):
         mujoco.mj_setState(sim_model, datas[0], row, mujoco.mjtState.mjSTATE_INTEGRATION)
         mujoco.mj_getState(sim_model, datas[0], initial[k], full)
     rollout.rollout(sim_model, datas, initial, nstep=2)  # warm up the thread pool
     t0 = time.perf_counter()
     rollout.rollout(sim_model, datas, initial, nstep=steps)
-    out["rollout_2_threads"] = n * steps / (time.perf_counter() - t0)
-    batch = mj_batch.Batch(sim_model, n)
-    batch.state[:] = states
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        batch.step()
-    out["batch"] = n * steps / (time.perf_counter() - t0)
-    return out
-
-
-def mjx_physics(sim_model, data, steps) -> tuple[float, float]:
-    mx = mjx.put_model(sim_model)
-
-    def roll(d):
-        return jax.lax.scan(lambda d, _: (mjx.step(mx, d), None), d, None, steps)[0]
-
-    compile_s, compiled = compile_seconds(jax.jit(jax.vmap(roll)), data)
-    t0 = time.perf_counter()
-    jax.block_until_ready(compiled(data))
-    return compile_s, len(data.qpos) * steps / (time.perf_counter() - t0)
+    return {
+        "rollout_2_threads": n * steps / (time.perf_counter() - t0),
+        "batch": n * steps / bench_c_physics(sim_model, starts, steps),
+    }
 
 
 def main() -> None:
@@ -137,10 +121,11 @@ def main() -> None:
         snapshots = {walk_key(1.0, 0.0, True): snap}
         times, phys, cstate = gather_starts(table, np.arange(n), snapshots, 0.0, model.nq, model.nv)
         steps = int(round(spec.horizon / model.opt.timestep))
-        c_phys = physics_alone(sim_model, phys, steps)
         starts = ChunkStarts(times, phys, cstate, np.zeros((n, 4)))
+        c_phys = physics_alone(sim_model, starts, steps)
         loop = mjx_loop_states(sim_model, starts)
-        mjx_compile, mjx_rate = mjx_physics(sim_model, loop.data, steps)
+        mjx_compile, mjx_wall = bench_mjx_physics(mjx.put_model(sim_model), loop.data, steps)
+        mjx_rate = n * steps / mjx_wall
 
         # The controller alone: one vmapped tick for the batch, from the same states.
         tick = jax.jit(jax.vmap(ctrl.step))
