@@ -62,6 +62,16 @@ def test_store_resumes_and_refuses_another_sweep(tmp_path):
     assert store.open(dict(manifest), table) == manifest  # same sweep: resumes
     with pytest.raises(ValueError, match="different sweep"):
         store.open(dict(manifest, spec_digest="x"), table)
+    # Physics, gait and backend decide outcomes too: a run with others is refused, while
+    # the same settings resume (tuples compare equal to the lists JSON stored).
+    other = tmp_path / "settings"
+    settings = dict(manifest, physics={"torque_limit": 500.0}, gait={"step": (0.1, 0.2)})
+    SweepStore(other).open(settings, table)
+    SweepStore(other).open(dict(settings), table)
+    with pytest.raises(ValueError, match="physics"):
+        SweepStore(other).open(dict(settings, physics={"torque_limit": None}), table)
+    with pytest.raises(ValueError, match="backend"):
+        SweepStore(other).open(dict(settings, backend="mjx"), table)
     _, out, have = store.load_results()
     assert have.tolist() == [False, True] and out["recovered"][1]
     assert not list(tmp_path.glob("chunks/*.tmp*"))

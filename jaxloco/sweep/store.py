@@ -24,6 +24,10 @@ from jaxloco.runtime import to_jsonable
 from jaxloco.sweep.outcome import FIELDS
 from jaxloco.sweep.spec import PushTable
 
+# What must match for a run directory to be resumed: outcomes of chunks already written
+# depend on every one of these (the backends, too, part ways after hard pushes).
+_SAME_SWEEP_KEYS = ("spec_digest", "chunk_size", "num_pushes", "gait", "physics", "backend")
+
 
 class SweepStore:
     """``writer=False`` reads but never writes (the other processes of a multi-host run:
@@ -60,11 +64,13 @@ class SweepStore:
         Returns the manifest in force (the existing one when resuming)."""
         if self.exists():
             old = self.read_manifest()
-            for key in ("spec_digest", "chunk_size", "num_pushes"):
-                if old.get(key) != manifest.get(key):
+            for key in _SAME_SWEEP_KEYS:
+                # Compare as stored (JSON: tuples become lists), so a resume matches itself.
+                now = json.loads(json.dumps(to_jsonable(manifest.get(key))))
+                if old.get(key) != now:
                     raise ValueError(
                         f"{self.dir} holds a different sweep ({key}: {old.get(key)!r} on disk, "
-                        f"{manifest.get(key)!r} now); choose another run directory"
+                        f"{now!r} now); choose another run directory"
                     )
             return old
         if not self.writer:
