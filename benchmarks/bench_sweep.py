@@ -7,6 +7,8 @@
    chunks, run twice into fresh directories with one fresh XLA cache: the first run
    compiles, the second starts from the cache (what a user sees re-running a sweep). Wall
    time of each, and closed-loop env-steps/s over the second chunk (from the manifest).
+   Its "recovered" is only "standing at the end of the horizon" (1 s; ``steps_after=0``):
+   a speed benchmark, not a robustness result (``jaxloco push-sweep`` runs 2.5 s).
 2. **Physics alone** in the same run, same batch, same ticks, from the same mid-walk
    states, zero torques: MuJoCo's ``mujoco.rollout`` (2 threads), the ``mujoco.batch``
    thread pool the C backend steps, and ``jit(vmap(scan(mjx.step)))``.
