@@ -61,6 +61,8 @@ class PushRecoveryConfig:
     """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
     physics: PhysicsSchema = field(default_factory=PhysicsSchema)
     """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
+    planner: str = ""
+    """RL-PSP checkpoint folder (``jaxloco train-planner`` writes one); empty: the shipped one."""
     videos: bool = True
     video_fps: int = 10
     timeout_s: float = 3600.0
@@ -70,10 +72,9 @@ class PushRecoveryConfig:
 ConfigStore.instance().store(name="push_recovery", node=PushRecoveryConfig)
 
 
-def replanning_time_15_steps(repeats: int = 200) -> dict:
+def replanning_time_15_steps(planner, repeats: int = 200) -> dict:
     """Wall time of planning 15 steps with the learned policy (jitted, from a pushed apex
     state), as the paper reports (< 1 ms)."""
-    planner = load_planner()
     fn = jax.jit(lambda s: plan_steps(s, planner.policy, planner.psp, 15, unroll=True))
     start = jnp.asarray([0.05, 0.39, 0.33], jnp.float32)
     t0 = time.perf_counter()
@@ -114,7 +115,10 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
     variants = {"replan": gait}
     if cfg.compare_no_replan:
         variants["no_replan"] = dataclasses.replace(gait, replan=False)
-    ctrls = {k: make_walking_controller(model, gait=g) for k, g in variants.items()}
+    planner = load_planner(cfg.planner or None)
+    ctrls = {
+        k: make_walking_controller(model, gait=g, planner=planner) for k, g in variants.items()
+    }
     results, runs = {}, {}
     with watchdog(cfg.timeout_s, "push-recovery"):
         base = simulate_walk(
@@ -140,7 +144,7 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
                     res, cfg.push_time, cfg.steps_after
                 )
                 log.info("%s %s deg: %s", name, direction, results[name][str(direction)])
-        timing = replanning_time_15_steps()
+        timing = replanning_time_15_steps(planner)
 
     summary = {
         "config": OmegaConf.to_container(OmegaConf.structured(cfg)),

@@ -22,7 +22,9 @@ from omegaconf import OmegaConf
 from jaxloco.config import config_schema, to_params
 from jaxloco.learning import (
     FAST,
+    STEERING,
     ActorCriticConfig,
+    EpisodeTurns,
     EvalConfig,
     RBFGrid,
     StartStates,
@@ -42,6 +44,7 @@ GridSchema = config_schema(RBFGrid)
 StartsSchema = config_schema(StartStates)
 PlannerSchema = config_schema(PSPParams)
 EvalSchema = config_schema(EvalConfig)
+TurnsSchema = config_schema(EpisodeTurns, STEERING)
 
 
 @dataclass
@@ -51,6 +54,8 @@ class TrainPlannerConfig:
     starts: StartsSchema = field(default_factory=StartsSchema)
     planner: PlannerSchema = field(default_factory=PlannerSchema)
     evaluation: EvalSchema = field(default_factory=EvalSchema)
+    turns: TurnsSchema = field(default_factory=TurnsSchema)
+    """Steering during training episodes, e.g. ``turns.max_deg=25``."""
     resume_from: str = ""
     """A checkpoint folder to continue training from (its config is used)."""
     progress: bool = True
@@ -67,6 +72,7 @@ def build_config(cfg: TrainPlannerConfig) -> TrainConfig:
         starts=to_params(StartStates, cfg.starts),
         planner=to_params(PSPParams, cfg.planner),
         evaluation=to_params(EvalConfig, cfg.evaluation),
+        turns=to_params(EpisodeTurns, cfg.turns),
     )
 
 
@@ -83,6 +89,7 @@ def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
         "iteration": int(result.state.iteration),
         "stop_reason": result.stop_reason,
         "best_basin": result.best_basin,
+        "best_steering_basin": result.best_steering_basin,
         "compile_seconds": result.compile_seconds,
         "train_seconds": result.train_seconds,
         "eval_seconds": result.eval_seconds,
@@ -93,11 +100,14 @@ def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
     fig = plot_learning_curve(result.history, title="RL-PSP training")
     fig.savefig(out_dir / "learning_curve.png", dpi=cfg.dpi)
     log.info(
-        "stopped after %d iterations (%s); best survival basin %s; compile %.1f s, "
-        "training %.1f s, evaluation %.1f s",
+        "stopped after %d iterations (%s); kept survival basin %s, steering basin %s; "
+        "compile %.1f s, training %.1f s, evaluation %.1f s",
         info["iteration"],
         result.stop_reason,
         f"{result.best_basin:.3f}" if result.best_basin is not None else "not evaluated",
+        f"{result.best_steering_basin:.3f}"
+        if result.best_steering_basin is not None
+        else "not evaluated",
         result.compile_seconds,
         result.train_seconds,
         result.eval_seconds,

@@ -23,6 +23,7 @@ from omegaconf import OmegaConf
 
 from jaxloco.config import config_schema, to_params
 from jaxloco.dynamics.model import load_valkyrie
+from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import turn_schedule
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
@@ -51,6 +52,8 @@ class WalkSteerConfig:
     """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
     physics: PhysicsSchema = field(default_factory=PhysicsSchema)
     """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
+    planner: str = ""
+    """RL-PSP checkpoint folder (``jaxloco train-planner`` writes one); empty: the shipped one."""
     video: bool = True
     video_fps: int = 10
     timeout_s: float = 1800.0
@@ -63,7 +66,8 @@ ConfigStore.instance().store(name="walk_steer", node=WalkSteerConfig)
 def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
     model = load_valkyrie()
     turns = turn_schedule([tuple(s) for s in cfg.segments])
-    ctrl = make_walking_controller(model, gait=to_params(GaitParams, cfg.gait))
+    planner = load_planner(cfg.planner or None)
+    ctrl = make_walking_controller(model, gait=to_params(GaitParams, cfg.gait), planner=planner)
     total = len(turns) + cfg.extra_steps
     with watchdog(cfg.timeout_s, "walk-steer"):
         res = simulate_walk(

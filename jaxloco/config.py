@@ -35,7 +35,9 @@ def config_schema(params_cls: type, defaults=None) -> type:
         if typing.get_origin(hint) is tuple:
             # OmegaConf has no tuples: a list in the config, a tuple again in to_params.
             args = set(typing.get_args(hint)) - {Ellipsis}
-            hint = list[args.pop()] if len(args) == 1 else list[typing.Any]
+            inner = args.pop() if len(args) == 1 else typing.Any
+            # Nor nested generics (e.g. tuples of pairs): Any elements there.
+            hint = list[typing.Any] if typing.get_origin(inner) is not None else list[inner]
             if default is not dataclasses.MISSING:
                 default_list = list(default)
                 spec = dataclasses.field(default_factory=lambda d=default_list: list(d))

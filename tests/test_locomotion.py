@@ -226,6 +226,36 @@ def test_walks_a_few_steps_and_recovers_a_push_ci_sized(walker):
     assert np.min(res.log.qpos[:, 2]) > 0.9
 
 
+def test_cam_reference_is_the_momentum_of_the_commanded_turn_and_the_arm_return(walker):
+    """The walking CAM reference equals the centroidal angular momentum A_G qd of (a) the
+    whole robot turning rigidly at the commanded yaw rate (checks the free joint's local
+    angular velocity convention) plus (b) the arms moving back to their posture."""
+    from jaxloco.locomotion.walking import ARM_TASK, _cam_reference
+
+    model, ctrl = walker
+    q = np.array(keyframe_qpos(model, "walk"), dtype=np.float64)
+    q[3:7] = Rotation.from_euler("zyx", [2.3, 0.1, -0.05]).as_quat(scalar_first=True)
+    arms = ctrl.wblc.indices[ARM_TASK]
+    q[list(arms.qpos)] += np.linspace(-0.2, 0.3, len(arms.qpos))  # arms off their posture
+    yaw_rate, rate = 0.7, ctrl.gait_params.arm_return_rate
+    R = Rotation.from_quat(q[3:7], scalar_first=True).as_matrix()
+    qd = np.zeros(model.nv)
+    qd[3:6] = R.T @ np.array([0.0, 0.0, yaw_rate])  # world-z turn, in the base frame
+    qd[list(arms.dof)] = rate * (np.asarray(ctrl.posture[ARM_TASK].pos) - q[list(arms.qpos)])
+    snap = ctrl.wblc.snapshot(jnp.asarray(q, jnp.float32), jnp.zeros(model.nv, jnp.float32))
+    body = gait_lib.yaw_reference(jnp.float32(2.3), jnp.float32(yaw_rate), jnp.float32(0.4))
+    ref = _cam_reference(ctrl, snap, jnp.asarray(q, jnp.float32), body)
+    expected = np.asarray(snap.centroidal_matrix[:3]) @ qd
+    assert np.linalg.norm(expected) > 1.0  # a real momentum, not a trivial match
+    np.testing.assert_allclose(ref.pos, expected, rtol=1e-4, atol=1e-3)
+    # The feed-forward rate is the turn's: A_G of the yaw axis times the yaw acceleration.
+    qd_acc = np.zeros(model.nv)
+    qd_acc[3:6] = R.T @ np.array([0.0, 0.0, 0.4])
+    np.testing.assert_allclose(
+        ref.acc, np.asarray(snap.centroidal_matrix[:3]) @ qd_acc, rtol=1e-4, atol=1e-4
+    )
+
+
 def test_mjx_and_mujoco_c_agree_through_liftoff(walker):
     """The same jitted controller on both backends, same solver settings, float64: the CoM
     agrees within 1 mm and the feet within 5 mm (the swing foot moves at up to ~1 m/s; measured

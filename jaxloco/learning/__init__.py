@@ -14,15 +14,17 @@ from jaxloco.learning.checkpoint import (
 )
 from jaxloco.learning.evaluation import mean_policy, steps_survived, survival_basin, value_function
 from jaxloco.learning.rbf import RBFGrid
-from jaxloco.learning.starts import StartStates
-from jaxloco.learning.training import FAST, EvalConfig, TrainConfig, TrainResult, train
+from jaxloco.learning.starts import EpisodeTurns, StartStates
+from jaxloco.learning.training import FAST, STEERING, EvalConfig, TrainConfig, TrainResult, train
 
 __all__ = [
     "FAST",
     "ActorCriticConfig",
+    "EpisodeTurns",
     "EvalConfig",
     "LearnedPlanner",
     "RBFGrid",
+    "STEERING",
     "StartStates",
     "TrainConfig",
     "TrainResult",

@@ -38,8 +38,9 @@ from flax import struct
 
 from jaxloco.learning import policy as pol
 from jaxloco.learning import rbf
-from jaxloco.learning.starts import StartStates, training_starts
-from jaxloco.planner import PSPParams, plan_step
+from jaxloco.learning.starts import EpisodeTurns, StartStates, episode_turns, training_starts
+from jaxloco.planner import PSPParams, lipm, plan_step
+from jaxloco.planner.steering import turn_local_frame
 
 OPTIMIZERS = ("sgd", "adam")
 
@@ -148,13 +149,26 @@ class IterationStats:
     mean_abs_td: jax.Array
 
 
-def rollout(params, key, starts, grid: rbf.RBFGrid, psp: PSPParams, num_steps: int) -> Rollout:
-    """Run episodes from ``starts (B, 3)`` with the stochastic policy, weights fixed."""
+def rollout(
+    params, key, starts, grid: rbf.RBFGrid, psp: PSPParams, num_steps: int, turns=None
+) -> Rollout:
+    """Run episodes from ``starts (B, 3)`` with the stochastic policy, weights fixed.
+
+    ``turns``: optional ``(B,)`` heading change per step (rad) of each episode. After each
+    step the next frame is turned and the state carried to its apex, as
+    :func:`~jaxloco.planner.plan_steps` steers; a step is then also terminal when its switch
+    falls before the re-projected start (``SWITCH_IN_PAST``) or the turned state has no apex.
+    """
     low = jnp.asarray(psp.action_low, starts.dtype)
     high = jnp.asarray(psp.action_high, starts.dtype)
+    batch = starts.shape[0]
+    if turns is not None:
+        turns = jnp.asarray(turns, starts.dtype)
+        if turns.shape != (batch,):
+            raise ValueError(f"turns must have shape ({batch},); got {turns.shape}")
 
     def step(carry, key_t):
-        state, active = carry
+        state, tau, sigma, active = carry
         feats = jax.vmap(lambda s: rbf.local_features(grid, s))(state)
         value, mean, log_spread = jax.vmap(pol.network_outputs, in_axes=(None, 0))(params, feats)
         mean = pol.sampling_mean(mean, low, high)
@@ -170,6 +184,15 @@ def rollout(params, key, starts, grid: rbf.RBFGrid, psp: PSPParams, num_steps: i
         d_mean = jnp.where(finite[:, None], d_mean, 0.0)
         d_log_spread = jnp.where(finite[:, None], d_log_spread, 0.0)
         plan = plan_step(state, action, psp)
+        reward, terminal, next_apex = plan.reward, plan.terminal, plan.next_state
+        next_tau = tau
+        if turns is not None:
+            next_apex, next_tau, apex_ok = _turned_apex(plan.next_state, -sigma, turns, psp)
+            # As plan_steps: only the re-projection can put a safe switch in the past.
+            in_past = (tau + plan.t_switch <= 0.0) & (plan.t_switch > psp.t_switch_min)
+            failed = ~terminal & (in_past | ~apex_ok)
+            reward = jnp.where(failed, jnp.asarray(psp.terminal_reward, reward.dtype), reward)
+            terminal = terminal | failed
         out = dict(
             features=feats,
             state=state,
@@ -178,18 +201,31 @@ def rollout(params, key, starts, grid: rbf.RBFGrid, psp: PSPParams, num_steps: i
             d_mean=d_mean,
             d_log_spread=d_log_spread,
             log_spread=log_spread,
-            reward=plan.reward,
-            terminal=plan.terminal,
+            reward=reward,
+            terminal=terminal,
             active=active,
         )
-        next_state = jnp.where(plan.terminal[:, None], state, plan.next_state)
-        return (next_state, active & ~plan.terminal), out
+        next_state = jnp.where(terminal[:, None], state, next_apex)
+        next_tau = jnp.where(terminal, tau, next_tau)
+        return (next_state, next_tau, -sigma, active & ~terminal), out
 
-    init = (starts, jnp.ones(starts.shape[0], bool))
-    (last_state, _), out = jax.lax.scan(step, init, jax.random.split(key, num_steps))
+    zeros = jnp.zeros((batch,), starts.dtype)
+    init = (starts, zeros, jnp.ones_like(zeros), jnp.ones(batch, bool))
+    (last_state, *_), out = jax.lax.scan(step, init, jax.random.split(key, num_steps))
     last_feats = jax.vmap(lambda s: rbf.local_features(grid, s))(last_state)
     final_value = jax.vmap(pol.network_outputs, in_axes=(None, 0))(params, last_feats)[0]
     return Rollout(**out, final_state=last_state, final_value=final_value)
+
+
+def _turned_apex(apex, next_sign, turns, psp: PSPParams):
+    """The next apex state ``(B, 3)`` (in the next foot's frame) after turning that frame by
+    ``turns``: ``(apex state of the turned frame, time to it from the step start, valid)``."""
+    local = jnp.stack([jnp.zeros_like(apex[:, 0]), apex[:, 1], apex[:, 0], apex[:, 2]], -1)
+    turned = turn_local_frame(local, next_sign, jnp.cos(turns), jnp.sin(turns))
+    w = psp.omega
+    tau, v_apex, growth, ok = lipm.apex_growth_of(turned[:, 0], turned[:, 1], 0.0, w)
+    y_apex, yd_apex = lipm.propagate_by_growth(turned[:, 2], turned[:, 3], 0.0, w, growth)
+    return jnp.stack([y_apex, v_apex, yd_apex], -1), tau, ok
 
 
 def td_errors(ro: Rollout, gamma: float):
@@ -331,6 +367,7 @@ def make_train_iteration(
     grid: rbf.RBFGrid = rbf.RBFGrid(),
     psp: PSPParams = PSPParams(),
     starts: StartStates = StartStates(),
+    turns: EpisodeTurns = EpisodeTurns(),
 ):
     """A jitted ``(state, key) -> (state, stats)``: one batch of episodes and its update."""
     optimizer = make_optimizer(cfg)
@@ -340,7 +377,11 @@ def make_train_iteration(
         k_start, k_roll = jax.random.split(key)
         s0 = training_starts(k_start, cfg.episodes_per_iteration, psp, starts)
         s0 = s0.astype(state.params.table.dtype)
-        ro = rollout(state.params, k_roll, s0, grid, psp, cfg.max_episode_steps)
+        episode_turn = None
+        if turns.enabled:  # a separate key stream: straight training draws what it always did
+            k_turn = jax.random.fold_in(key, 1)
+            episode_turn = episode_turns(k_turn, cfg.episodes_per_iteration, turns, s0.dtype)
+        ro = rollout(state.params, k_roll, s0, grid, psp, cfg.max_episode_steps, episode_turn)
         direction, delta = update_direction(state.params, ro, cfg)
         updates, opt_state = optimizer.update(direction, state.opt_state, state.params)
         params = optax.apply_updates(state.params, updates)

@@ -31,7 +31,7 @@ from jaxloco.learning.actor_critic import (
     TrainState,
     init_train_state,
 )
-from jaxloco.learning.starts import StartStates
+from jaxloco.learning.starts import EpisodeTurns, StartStates
 from jaxloco.learning.training import EvalConfig, TrainConfig
 from jaxloco.planner import PSPParams
 from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
@@ -73,6 +73,8 @@ def load_checkpoint_config(path) -> tuple[TrainConfig, dict]:
         starts=to_params(StartStates, c["starts"]),
         planner=to_params(PSPParams, c["planner"]),
         evaluation=to_params(EvalConfig, c["evaluation"]),
+        # Checkpoints from before steering training walked straight.
+        turns=to_params(EpisodeTurns, c.get("turns", {})),
     )
     return config, meta.get("info", {})
 

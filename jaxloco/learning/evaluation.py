@@ -35,11 +35,15 @@ def value_function(params: pol.ActorCriticParams, grid: rbf.RBFGrid):
     return value
 
 
-def steps_survived(policy, states, psp: PSPParams, num_steps: int = 50):
-    """``(n,)`` number of safe steps the policy takes from each apex state (max num_steps)."""
-    return jax.vmap(lambda s: plan_steps(s, policy, psp, num_steps=num_steps).num_safe_steps)(
-        states
-    )
+def steps_survived(policy, states, psp: PSPParams, num_steps: int = 50, turns=None):
+    """``(n,)`` number of safe steps the policy takes from each apex state (max num_steps).
+
+    ``turns``: optional ``(num_steps,)`` heading changes (rad) applied after each step, as
+    in :func:`~jaxloco.planner.plan_steps` (e.g. Fig. 11's schedule from ``turn_schedule``).
+    """
+    return jax.vmap(
+        lambda s: plan_steps(s, policy, psp, num_steps=num_steps, turns=turns).num_safe_steps
+    )(states)
 
 
 def survival_basin(
@@ -49,11 +53,13 @@ def survival_basin(
     num_states: int = 4096,
     num_steps: int = 50,
     spec: StartStates = StartStates(),
+    turns=None,
 ):
     """Fraction of uniform box states from which ``policy`` survives ``num_steps`` steps.
 
-    Returns ``(fraction, states (n, 3), steps (n,))``.
+    With ``turns`` (``(num_steps,)`` rad) the walk steers by that schedule: the *steering
+    basin*. Returns ``(fraction, states (n, 3), steps (n,))``.
     """
     states = uniform_states(key, num_states, spec)
-    steps = steps_survived(policy, states, psp, num_steps)
+    steps = steps_survived(policy, states, psp, num_steps, turns)
     return jnp.mean(steps == num_steps), states, steps

@@ -50,6 +50,42 @@ class StartStates:
             raise ValueError("StartStates.impulses must not be empty")
 
 
+@dataclasses.dataclass(frozen=True)
+class EpisodeTurns:
+    """Heading changes during training episodes (steering: Fig. 3b, Fig. 11).
+
+    After each step the next local frame is turned and the CoM state re-projected into it,
+    as :func:`jaxloco.planner.plan_steps` does when steering, so the policy learns the
+    (generally larger lateral-velocity) apex states that turning produces. The paper's
+    training walks straight (``max_deg = 0``).
+    """
+
+    max_deg: float = 0.0
+    """A turning episode turns by one heading change per step, drawn uniformly from
+    ``[-max_deg, max_deg]`` degrees (0: every episode walks straight)."""
+    fraction: float = 0.5
+    """Share of episodes that turn; the rest walk straight."""
+
+    def __post_init__(self):
+        if not 0.0 <= self.max_deg < 90.0:
+            raise ValueError(f"EpisodeTurns.max_deg must be in [0, 90); got {self.max_deg}")
+        if not 0.0 <= self.fraction <= 1.0:
+            raise ValueError(f"EpisodeTurns.fraction must be in [0, 1]; got {self.fraction}")
+
+    @property
+    def enabled(self) -> bool:
+        return self.max_deg > 0.0 and self.fraction > 0.0
+
+
+def episode_turns(key, n: int, spec: EpisodeTurns, dtype=None):
+    """``(n,)`` per-step heading changes (rad), one per episode (0 for straight episodes)."""
+    dtype = dtype or jnp.zeros(()).dtype
+    k_turn, k_mix = jax.random.split(key)
+    limit = jnp.deg2rad(jnp.asarray(spec.max_deg, dtype))
+    turn = jax.random.uniform(k_turn, (n,), dtype, -limit, limit)
+    return jnp.where(jax.random.uniform(k_mix, (n,)) < spec.fraction, turn, 0.0)
+
+
 def uniform_states(key, n: int, spec: StartStates = StartStates(), dtype=None):
     """``(n, 3)`` apex states drawn uniformly from the box."""
     dtype = dtype or jnp.zeros(()).dtype

@@ -106,6 +106,10 @@ class GaitParams:
     serves several speeds."""
     replan_min_remaining: float = 0.08
     """No replanning this close to the planned touch-down (s): the foot is landing."""
+    arm_return_rate: float = 2.0
+    """Rate (1/s) at which the CAM reference brings the arms back to their posture (see
+    ``walking._cam_reference``): the arms serve as momentum actuators, and without it they
+    wind up while steering. 0: off."""
 
     def __post_init__(self):
         checks = {
@@ -143,6 +147,7 @@ class GaitParams:
             "replan_delay": (self.replan_delay >= 0, ">= 0"),
             "replan_gamma": (0 <= self.replan_gamma <= 1, "in [0, 1]"),
             "replan_min_remaining": (self.replan_min_remaining >= 0, ">= 0"),
+            "arm_return_rate": (0 <= self.arm_return_rate < 100, "in [0, 100)"),
         }
         for name, (ok, rule) in checks.items():
             value = getattr(self, name)

@@ -23,6 +23,9 @@ from jaxloco.learning.checkpoint import LearnedPlanner, load_planner
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.gait import GaitParams, GaitState
 
+ARM_TASK = "arms"
+"""The joint-posture task of the arms (the walking hierarchy's last level)."""
+
 
 @struct.dataclass
 class WalkingState:
@@ -93,6 +96,7 @@ class WalkingController:
         body = gait_lib.yaw_reference(*r.body_yaw)
         for name in ("pelvis_ori", "body_ori"):
             refs[name] = refs[name].replace(pos=body[0], vel=body[1], acc=body[2])
+        refs[wblc.config.cam_task] = _cam_reference(self, snap, qpos, body)
         swing_ori = gait_lib.yaw_reference(*r.swing_yaw)
         for k, side in enumerate(FEET):
             on = r.swinging[k]
@@ -129,6 +133,32 @@ class WalkingController:
             "over_limit": jnp.any(dg.torque_over_limit),
         }
         return out.torques, WalkingState(g, out.qp_state), log
+
+
+def _cam_reference(ctrl: WalkingController, snap, qpos, body_yaw):
+    """The CAM task's reference while walking: the angular momentum of the whole body
+    turning at the commanded yaw rate, plus that of the arms moving back to their posture
+    at ``arm_return_rate``.
+
+    The CAM task sits above the arm posture, so the arms carry whatever momentum the rest
+    of the body does not. With a zero reference they cancel the body's own turn (measured
+    while steering 18.8 deg a step: shoulders at 7-15x their effort limits); with the turn
+    alone they still wind up, turn after turn, until past their joint limits. Walking
+    straight the turn term is zero.
+    """
+    model, cfg = ctrl.wblc.model, ctrl.wblc.config
+    a_ang = snap.centroidal_matrix[:3]
+    base_body, base_dof = int(model.jnt_bodyid[0]), int(model.jnt_dofadr[0])
+    world_z_in_base = snap.data.xmat[base_body][2]  # free-joint angular velocity is local
+    k_per_yaw_rate = a_ang[:, base_dof + 3 : base_dof + 6] @ world_z_in_base
+    ref = ctrl.posture[cfg.cam_task]
+    pos = k_per_yaw_rate * body_yaw[1][2]
+    rate = ctrl.gait_params.arm_return_rate
+    if ARM_TASK in ctrl.wblc.indices and ARM_TASK in ctrl.posture and rate > 0:
+        arms = ctrl.wblc.indices[ARM_TASK]
+        qd_back = rate * (ctrl.posture[ARM_TASK].pos - qpos[jnp.asarray(arms.qpos)])
+        pos = pos + a_ang[:, jnp.asarray(arms.dof)] @ qd_back
+    return ref.replace(pos=pos, acc=k_per_yaw_rate * body_yaw[2][2])
 
 
 def make_walking_controller(

@@ -27,9 +27,12 @@ def plot_learning_curve(history: list[dict], title: str = "RL-PSP training") -> 
                     ax.plot(x, values[:, k], label=name)
                 ax.legend(fontsize=7)
             elif key == "basin":
-                pts = [(xv, h["basin"]) for xv, h in zip(x, history, strict=True) if "basin" in h]
-                if pts:
-                    ax.plot(*zip(*pts, strict=True), "o-")
+                for name, label in (("basin", "straight"), ("steering_basin", "steering")):
+                    pts = [(xv, h[name]) for xv, h in zip(x, history, strict=True) if name in h]
+                    if pts:
+                        ax.plot(*zip(*pts, strict=True), "o-", ms=3, label=label)
+                if any("steering_basin" in h for h in history):
+                    ax.legend(fontsize=7)
             else:
                 ax.plot(x, [h[key] for h in history])
             ax.set(xlabel=xlabel, title=label if row == 0 else None)
