@@ -22,7 +22,6 @@ from omegaconf import OmegaConf
 from jaxloco.config import config_schema, to_params
 from jaxloco.learning import (
     FAST,
-    STEERING,
     ActorCriticConfig,
     EpisodeTurns,
     EvalConfig,
@@ -44,7 +43,7 @@ GridSchema = config_schema(RBFGrid)
 StartsSchema = config_schema(StartStates)
 PlannerSchema = config_schema(PSPParams)
 EvalSchema = config_schema(EvalConfig)
-TurnsSchema = config_schema(EpisodeTurns, STEERING)
+TurnsSchema = config_schema(EpisodeTurns)
 
 
 @dataclass
@@ -55,7 +54,9 @@ class TrainPlannerConfig:
     planner: PlannerSchema = field(default_factory=PlannerSchema)
     evaluation: EvalSchema = field(default_factory=EvalSchema)
     turns: TurnsSchema = field(default_factory=TurnsSchema)
-    """Steering during training episodes, e.g. ``turns.max_deg=25``."""
+    """Steering during training episodes (default: straight, as the paper). The
+    :data:`~jaxloco.learning.training.STEERING` preset is ``turns.max_deg=20
+    actor_critic.max_iterations=800``."""
     resume_from: str = ""
     """A checkpoint folder to continue training from (its config is used)."""
     progress: bool = True

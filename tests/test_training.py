@@ -11,6 +11,7 @@ from cli_helpers import run_cli
 
 from jaxloco.learning import (
     FAST,
+    STEERING,
     EpisodeTurns,
     EvalConfig,
     LearnedPlanner,
@@ -26,7 +27,7 @@ from jaxloco.learning import (
 )
 from jaxloco.learning.checkpoint import load_train_state
 from jaxloco.learning.training import params_fingerprint
-from jaxloco.planner import PSPParams, plan_steps, turn_schedule
+from jaxloco.planner import PSPParams
 
 P = PSPParams()
 SMALL = TrainConfig(
@@ -47,22 +48,20 @@ def test_train_runs_evaluates_and_keeps_the_best(small_run):
     assert [h["iteration"] for h in small_run.history] == [1, 2, 3, 4, 5]
     evaluated = [h for h in small_run.history if "basin" in h]
     assert [h["iteration"] for h in evaluated] == [2, 4, 5]
-    # Training steers by default: the kept weights maximise the mean of the two basins.
-    assert SMALL.turns.enabled and all("steering_basin" in h for h in evaluated)
-    best = max(evaluated, key=lambda h: h["basin"] + h["steering_basin"])
-    assert small_run.best_basin == best["basin"]
-    assert small_run.best_steering_basin == best["steering_basin"]
+    assert not any("steering_basin" in h for h in evaluated)  # straight, as the paper
+    assert small_run.best_basin == max(h["basin"] for h in evaluated)
+    assert small_run.best_steering_basin is None
     assert all(np.isfinite(h["mean_return"]) for h in small_run.history)
     assert small_run.compile_seconds > 0 and small_run.train_seconds > 0
 
 
-def test_straight_training_keeps_the_best_straight_basin():
-    straight = dataclasses.replace(SMALL, turns=EpisodeTurns())
-    result = train(straight, progress=False)
+def test_steering_training_keeps_the_best_mean_of_both_basins():
+    result = train(dataclasses.replace(SMALL, turns=STEERING), progress=False)
     evaluated = [h for h in result.history if "basin" in h]
-    assert evaluated and not any("steering_basin" in h for h in evaluated)
-    assert result.best_basin == max(h["basin"] for h in evaluated)
-    assert result.best_steering_basin is None
+    assert evaluated and all(0.0 <= h["steering_basin"] <= 1.0 for h in evaluated)
+    best = max(evaluated, key=lambda h: h["basin"] + h["steering_basin"])
+    assert result.best_basin == best["basin"]
+    assert result.best_steering_basin == best["steering_basin"]
 
 
 def test_checkpoints_keep_the_training_turns_and_old_ones_load_as_straight(tmp_path):
@@ -82,15 +81,6 @@ def test_checkpoints_keep_the_training_turns_and_old_ones_load_as_straight(tmp_p
     assert load_checkpoint_config(path)[0].turns == EpisodeTurns()
     with pytest.raises(ValueError, match="turn_schedule segment 0"):
         EvalConfig(steering_segments=((3, 95.0),))
-
-
-def test_shipped_planner_walks_the_fig11_schedule_on_the_lipm():
-    """The shipped policy was trained with turns: from the nominal apex it walks the paper's
-    29-step steering schedule (Fig. 11) on the reduced model without a terminal step."""
-    planner = load_planner()
-    turns = turn_schedule([(12, 18.8), (5, 0.0), (12, -18.8)])
-    plan = plan_steps(jnp.asarray(P.nominal_state), planner.policy, P, len(turns), turns)
-    assert int(plan.num_safe_steps) == len(turns)
 
 
 def test_spread_target_stops_training():
