@@ -273,37 +273,34 @@ def test_td_errors_stop_at_termination_and_bootstrap_at_the_cap():
 def test_turning_rollout_follows_plan_steps_and_zero_turns_change_nothing():
     """The batched episodes with heading changes walk exactly what plan_steps plans for the
     same actions and turn schedule (re-projection, apex shift, SWITCH_IN_PAST, NO_APEX)."""
-    jax.config.update("jax_enable_x64", True)
-    try:
-        cfg = ActorCriticConfig(initial_spread=0.15)
-        state = init_train_state(cfg, SMALL_GRID, jax.random.key(0), dtype=jnp.float64)
-        n, steps = 48, 6
-        starts = pushed_states(jax.random.key(1), n, P, StartStates(noise=0.03, impulses=(5.0,)))
-        turns = jnp.linspace(-0.45, 0.45, n)  # up to 26 deg a step, both ways
-        key = jax.random.key(2)
-        ro = rollout(state.params, key, starts, SMALL_GRID, P, steps, turns)
-        for b in range(n):
-            plan = plan_steps(starts[b], ro.action[:, b], P, turns=jnp.full((steps,), turns[b]))
-            active = np.asarray(ro.active[:, b])
-            np.testing.assert_allclose(ro.state[active, b], plan.apex_states[active], atol=1e-9)
-            # A step ends the episode exactly where plan_steps marks it (or the next step
-            # has no apex, which plan_steps flags on that next step).
-            alive = np.asarray(plan.alive)
-            ended = np.asarray(ro.terminal[:, b] & ro.active[:, b])
-            if ended.any():
-                k = int(np.argmax(ended))
-                assert alive[:k].all() and not alive[min(k + 1, steps - 1)]
-            else:
-                assert alive.all()
-        assert bool(jnp.any(ro.terminal & ro.active))  # the sharp turns do end some episodes
-        straight = rollout(state.params, key, starts, SMALL_GRID, P, steps)
-        zero = rollout(state.params, key, starts, SMALL_GRID, P, steps, jnp.zeros(n))
-        np.testing.assert_allclose(zero.state, straight.state, atol=1e-12)
-        np.testing.assert_array_equal(zero.terminal, straight.terminal)
-        with pytest.raises(ValueError, match=r"turns must have shape \(48,\)"):
-            rollout(state.params, key, starts, SMALL_GRID, P, steps, jnp.zeros(3))
-    finally:
-        jax.config.update("jax_enable_x64", False)
+    cfg = ActorCriticConfig(initial_spread=0.15)
+    # float64: the suite's default (conftest)
+    state = init_train_state(cfg, SMALL_GRID, jax.random.key(0), dtype=jnp.float64)
+    n, steps = 48, 6
+    starts = pushed_states(jax.random.key(1), n, P, StartStates(noise=0.03, impulses=(5.0,)))
+    turns = jnp.linspace(-0.45, 0.45, n)  # up to 26 deg a step, both ways
+    key = jax.random.key(2)
+    ro = rollout(state.params, key, starts, SMALL_GRID, P, steps, turns)
+    for b in range(n):
+        plan = plan_steps(starts[b], ro.action[:, b], P, turns=jnp.full((steps,), turns[b]))
+        active = np.asarray(ro.active[:, b])
+        np.testing.assert_allclose(ro.state[active, b], plan.apex_states[active], atol=1e-9)
+        # A step ends the episode exactly where plan_steps marks it (or the next step
+        # has no apex, which plan_steps flags on that next step).
+        alive = np.asarray(plan.alive)
+        ended = np.asarray(ro.terminal[:, b] & ro.active[:, b])
+        if ended.any():
+            k = int(np.argmax(ended))
+            assert alive[:k].all() and not alive[min(k + 1, steps - 1)]
+        else:
+            assert alive.all()
+    assert bool(jnp.any(ro.terminal & ro.active))  # the sharp turns do end some episodes
+    straight = rollout(state.params, key, starts, SMALL_GRID, P, steps)
+    zero = rollout(state.params, key, starts, SMALL_GRID, P, steps, jnp.zeros(n))
+    np.testing.assert_allclose(zero.state, straight.state, atol=1e-12)
+    np.testing.assert_array_equal(zero.terminal, straight.terminal)
+    with pytest.raises(ValueError, match=r"turns must have shape \(48,\)"):
+        rollout(state.params, key, starts, SMALL_GRID, P, steps, jnp.zeros(3))
 
 
 def test_episode_turns_draws_and_validation():
