@@ -281,13 +281,15 @@ def test_turning_rollout_follows_plan_steps_and_zero_turns_change_nothing():
     turns = jnp.linspace(-0.45, 0.45, n)  # up to 26 deg a step, both ways
     key = jax.random.key(2)
     ro = rollout(state.params, key, starts, SMALL_GRID, P, steps, turns)
+    plans = jax.jit(jax.vmap(lambda s, a, t: plan_steps(s, a, P, turns=jnp.full((steps,), t))))(
+        starts, jnp.swapaxes(ro.action, 0, 1), turns
+    )
     for b in range(n):
-        plan = plan_steps(starts[b], ro.action[:, b], P, turns=jnp.full((steps,), turns[b]))
         active = np.asarray(ro.active[:, b])
-        np.testing.assert_allclose(ro.state[active, b], plan.apex_states[active], atol=1e-9)
+        np.testing.assert_allclose(ro.state[active, b], plans.apex_states[b, active], atol=1e-9)
         # A step ends the episode exactly where plan_steps marks it (or the next step
         # has no apex, which plan_steps flags on that next step).
-        alive = np.asarray(plan.alive)
+        alive = np.asarray(plans.alive[b])
         ended = np.asarray(ro.terminal[:, b] & ro.active[:, b])
         if ended.any():
             k = int(np.argmax(ended))
