@@ -337,3 +337,17 @@ def test_push_recovery_experiment_ci_sized(tmp_path):
     assert summary["replanning_15_steps"]["median_ms"] > 0
     assert "| replan | 90 |" in (run / "push_recovery.md").read_text()
     assert (run / "push_recovery.png").exists()
+
+
+@pytest.mark.slow  # ~4 min: 23 s of simulated walking
+def test_walk_steer_paper_schedule_completes(tmp_path):
+    """Fig. 11 in full: 12 steps at +18.8 deg, 5 straight, 12 at -18.8, then 2 straight."""
+    from cli_helpers import run_cli
+
+    proc = run_cli(["walk-steer", "video=false"], tmp_path, timeout=1500)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((tmp_path / "run" / "walk_steer.json").read_text())
+    assert summary["completed"] and not summary["fell"]
+    assert summary["max_heading_deg"] == pytest.approx(225.6, abs=0.1)
+    assert summary["final_heading_deg"] == pytest.approx(0.0, abs=1e-3)
+    assert summary["max_com_error_m"] < 0.05
