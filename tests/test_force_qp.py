@@ -207,3 +207,51 @@ def test_polish_on_random_qps_is_exact_and_never_worse():
 def test_params_validation():
     with pytest.raises(ValueError, match="need 0 < mu < mu_relaxed"):
         ForceQPParams(mu=2.0)
+
+
+def test_structured_constraint_products_equal_the_dense_matrix():
+    from jaxloco.control.force_qp import build_qp, constraint_ops
+
+    rng = np.random.default_rng(3)
+    points, contact, com, f_lin, f_ang = contact_problem(rng)
+    for mu in (0.65, 1.75):
+        *_, A, _lo, _up, _w = build_qp(
+            jnp.asarray(points), jnp.asarray(contact), com, f_lin, f_ang, mu, ForceQPParams()
+        )
+        a_mul, at_mul = constraint_ops(len(points), mu)
+        x, y = rng.normal(size=A.shape[1]), rng.normal(size=A.shape[0])
+        np.testing.assert_allclose(a_mul(jnp.asarray(x)), A @ x, atol=1e-12)
+        np.testing.assert_allclose(at_mul(jnp.asarray(y)), A.T @ y, atol=1e-12)
+
+
+def test_warm_started_closed_loop_settings_track_the_cold_solution():
+    """The walking preset's fewer iterations rely on each tick starting from the last
+    tick's solution: along a slowly varying sequence of problems (a CoM force swinging
+    sideways, weight shifting to one foot) they give the cold 400-iteration forces."""
+    from jaxloco.control.presets import CLOSED_LOOP_QP, walking_config
+
+    assert walking_config().force_qp == CLOSED_LOOP_QP
+    assert CLOSED_LOOP_QP.iterations < ForceQPParams().iterations
+    points, _contact, com, _f, _a = contact_problem(np.random.default_rng(4))
+    contact = np.ones(8, bool)
+    ticks = np.linspace(0.0, 1.0, 60)
+    f_lin = 135.9 * np.stack(
+        [2.0 * np.sin(2 * np.pi * ticks), 1.5 * ticks, 9.81 + 0.5 * np.cos(3 * ticks)], -1
+    )
+    f_ang = np.stack([10 * np.sin(4 * ticks), 5 * ticks, np.zeros_like(ticks)], -1)
+    fz_max = np.stack(
+        [np.r_[np.full(4, 3000.0), np.full(4, 3000.0 * (1 - t) + 5.0 * t)] for t in ticks]
+    )
+    seq = [jnp.asarray(a) for a in (f_lin, f_ang, fz_max)]
+    args = (jnp.asarray(points), jnp.asarray(contact), jnp.asarray(com))
+    cold = jax.vmap(lambda fl, fa, fz: solve_contact_forces(*args, fl, fa, fz_max=fz))(*seq)
+
+    def tick(warm, inputs):
+        fl, fa, fz = inputs
+        sol = solve_contact_forces(*args, fl, fa, CLOSED_LOOP_QP, fz_max=fz, warm_start=warm)
+        return sol.warm_start, sol
+
+    zero = admm.zero_state(24, 59)
+    _, warm = jax.jit(lambda s: jax.lax.scan(tick, (zero, zero), s))(seq)
+    assert not bool(jnp.any(cold.relaxed)) and not bool(jnp.any(warm.relaxed))
+    np.testing.assert_allclose(warm.forces[1:], cold.forces[1:], atol=1e-3)

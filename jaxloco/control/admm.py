@@ -60,6 +60,7 @@ def solve_qp(
     adapt_every: int = 25,
     warm_start: ADMMState | None = None,
     unroll: int = 5,
+    a_ops: tuple | None = None,
 ) -> ADMMResult:
     """Run ``iterations`` ADMM steps on the QP (see the module doc).
 
@@ -68,8 +69,11 @@ def solve_qp(
     problems (e.g. a heavily weighted soft task) then converge without tuning ``rho``.
     ``adapt_every = 0`` keeps ``rho`` fixed. ``unroll``: iterations per loop trip
     (XLA's per-trip overhead on CPU is comparable to one iteration's arithmetic).
+    ``a_ops``: optional ``(x -> A x, y -> A' y)`` exploiting A's structure inside the
+    iterations (A stays dense for the factorisation and the residuals).
     """
     n, m = P.shape[0], A.shape[0]
+    a_mul, at_mul = (lambda x: A @ x, lambda y: A.T @ y) if a_ops is None else a_ops
     state = zero_state(n, m, P.dtype) if warm_start is None else warm_start
     is_eq = (upper - lower) < 1e-9
     eye = jnp.eye(n, dtype=P.dtype)
@@ -85,9 +89,9 @@ def solve_qp(
         kkt_inv = jax.scipy.linalg.cho_solve(chol, eye)
 
         def step(s: ADMMState, _):
-            rhs = sigma * s.x - q + A.T @ (rho_vec * s.z - s.y)
+            rhs = sigma * s.x - q + at_mul(rho_vec * s.z - s.y)
             x_tilde = kkt_inv @ rhs
-            z_tilde = A @ x_tilde
+            z_tilde = a_mul(x_tilde)
             x = alpha * x_tilde + (1.0 - alpha) * s.x
             z_relaxed = alpha * z_tilde + (1.0 - alpha) * s.z
             z = jnp.clip(z_relaxed + s.y / rho_vec, lower, upper)
@@ -115,10 +119,11 @@ def solve_qp(
     return ADMMResult(state.x, state, primal, dual)
 
 
-def _kkt_point(P, q, A, lower, upper, at_lower, at_upper, delta, refinements, h_inv, gram):
+def _kkt_point(P, q, A, lower, upper, at_lower, at_upper, delta, refinements, l_inv, h_at, gram):
     """Solve the equality-constrained QP on a guessed active set; say whether the result
-    satisfies the KKT conditions of the full QP. ``h_inv = (P + dI)^-1`` and
-    ``gram = A h_inv A'`` do not depend on the guess and are shared between steps."""
+    satisfies the KKT conditions of the full QP. ``l_inv`` (inverse of the lower Cholesky factor of
+    ``H = P + dI``), ``h_at = H^-1 A'`` and ``gram = A H^-1 A'`` do not depend on the guess
+    and are shared between steps."""
     dtype = P.dtype
     is_eq = (upper - lower) < 1e-9
     at_lower = at_lower | is_eq
@@ -129,15 +134,13 @@ def _kkt_point(P, q, A, lower, upper, at_lower, at_upper, delta, refinements, h_
     # (Cholesky; LU under vmap has hung XLA:CPU at large batches).
     ad = A * d[:, None]
     schur = gram * d[:, None] * d[None, :] + jnp.diag(delta * d + (1.0 - d))
-    s_inv = jax.scipy.linalg.cho_solve(
-        jax.scipy.linalg.cho_factor(schur), jnp.eye(A.shape[0], dtype=dtype)
-    )
-    h_at = h_inv @ ad.T
+    s_chol = jax.scipy.linalg.cho_factor(schur)
+    h_at = h_at * d[None, :]
 
     def damped_solve(r_x, r_y):
         """Solve [[P + dI, A_a'], [A_a, -dI - (I - D)]] [x; y] = [r_x; r_y]."""
-        h_rx = h_inv @ r_x
-        y = s_inv @ (ad @ h_rx - r_y)
+        h_rx = l_inv.T @ (l_inv @ r_x)
+        y = jax.scipy.linalg.cho_solve(s_chol, ad @ h_rx - r_y)
         return h_rx - h_at @ y, y
 
     x, y = damped_solve(-q, target)
@@ -189,15 +192,23 @@ def polish(
     Shapes are static and the steps unrolled, so this batches and differentiates.
     """
     y = result.state.y
-    at_lower, at_upper = y < -dual_tolerance, y > dual_tolerance
+    z = result.state.z
+    at_lower = (y < -dual_tolerance) | (z <= lower)
+    at_upper = (y > dual_tolerance) | (z >= upper)
     admm_violation = jnp.maximum(_violation(A, lower, upper, result.x), 1e-9)
     x_out, y_out, accepted = result.x, y, jnp.asarray(False)
     eye = jnp.eye(P.shape[0], dtype=P.dtype)
-    h_inv = jax.scipy.linalg.cho_solve(jax.scipy.linalg.cho_factor(P + delta * eye), eye)
-    gram = A @ h_inv @ A.T
+    h_chol = jnp.linalg.cholesky(P + delta * eye)
+    # gram = B'B with B = L^-1 A': positive semi-definite by construction. Formed as
+    # A (P + dI)^-1 A' from an explicit inverse it was indefinite in float32 (P carries the
+    # 5000-weighted angular term), and the Schur complement's Cholesky broke down (NaN).
+    l_inv = jax.scipy.linalg.solve_triangular(h_chol, eye, lower=True)
+    b = l_inv @ A.T
+    gram = b.T @ b
+    h_at = l_inv.T @ b
     for _ in range(steps):
         x, y_pol, ok = _kkt_point(
-            P, q, A, lower, upper, at_lower, at_upper, delta, refinements, h_inv, gram
+            P, q, A, lower, upper, at_lower, at_upper, delta, refinements, l_inv, h_at, gram
         )
         ok = ok & (_violation(A, lower, upper, x) <= admm_violation) & ~accepted
         x_out = jnp.where(ok, x, x_out)

@@ -54,6 +54,9 @@ class ForceQPParams:
     polish: bool = True
     """Finish with an active-set polish (admm.polish): exact on the tail of badly
     conditioned cases where ADMM alone is slow."""
+    polish_steps: int = 4
+    """Active-set steps of the polish (each one Cholesky of the constraint-sized Schur
+    complement); warm-started closed loops need fewer."""
     force_scale: float = 100.0
     """Forces are solved in units of this many newtons (conditioning)."""
     tolerance: float = 1e-3
@@ -70,6 +73,8 @@ class ForceQPParams:
             )
         if self.iterations < 1 or self.rho <= 0 or self.force_scale <= 0:
             raise ValueError("ForceQPParams: iterations >= 1, rho > 0 and force_scale > 0 required")
+        if self.polish_steps < 1:
+            raise ValueError(f"ForceQPParams.polish_steps must be >= 1; got {self.polish_steps}")
 
 
 @struct.dataclass
@@ -135,6 +140,27 @@ def build_qp(points, in_contact, com, f_lin, f_ang, mu, params: ForceQPParams, f
     return P, q, A, lower, upper, w_ang
 
 
+def constraint_ops(n: int, mu):
+    """``(x -> A x, y -> A' y)`` for :func:`build_qp`'s ``A`` without forming it: the
+    sum of the forces, 4 pyramid rows per point and the identity of the bounds, O(n)
+    instead of the dense (7n + 3) x 3n products."""
+
+    def a_mul(x):
+        f = x.reshape(n, 3)
+        fx, fy, mfz = f[:, 0], f[:, 1], mu * f[:, 2]
+        pyramid = jnp.stack([fx - mfz, -fx - mfz, fy - mfz, -fy - mfz], axis=1)
+        return jnp.concatenate([jnp.sum(f, axis=0), pyramid.reshape(-1), x])
+
+    def at_mul(y):
+        lin, pyr, box = y[:3], y[3 : 3 + 4 * n].reshape(n, 4), y[3 + 4 * n :]
+        per_point = jnp.stack(
+            [pyr[:, 0] - pyr[:, 1], pyr[:, 2] - pyr[:, 3], -mu * jnp.sum(pyr, axis=1)], axis=1
+        )
+        return (per_point + lin).reshape(-1) + box
+
+    return a_mul, at_mul
+
+
 def _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz_max, warm):
     P, q, A, lower, upper, w_ang = build_qp(
         points, in_contact, com, f_lin, f_ang, mu, params, fz_max
@@ -149,9 +175,10 @@ def _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz_max, warm):
         params.rho,
         adapt_every=params.adapt_every,
         warm_start=warm,
+        a_ops=constraint_ops(points.shape[0], mu),
     )
     if params.polish:
-        result = admm.polish(P, q, A, lower, upper, result)
+        result = admm.polish(P, q, A, lower, upper, result, steps=params.polish_steps)
     s = params.force_scale
     # Points out of contact are bound to zero: return exact zeros, not ADMM's ~1e-13.
     f = result.x * s * jnp.repeat(in_contact.astype(points.dtype), 3)
@@ -188,11 +215,17 @@ def solve_contact_forces(
     """
     points, com = jnp.asarray(points), jnp.asarray(com)
     f_lin, f_ang = jnp.asarray(f_lin, points.dtype), jnp.asarray(f_ang, points.dtype)
-    warm = (None, None) if warm_start is None else warm_start
-    nominal = _solve(points, in_contact, com, f_lin, f_ang, params.mu, params, fz_max, warm[0])
-    relaxed = _solve(
-        points, in_contact, com, f_lin, f_ang, params.mu_relaxed, params, fz_max, warm[1]
-    )
+    n = points.shape[0]
+    if warm_start is None:
+        zero = admm.zero_state(3 * n, 7 * n + 3, points.dtype)
+        warm_start = (zero, zero)
+    # Both cones at once, as a batch of two: one pass of small ops instead of two.
+    warm = jax.tree.map(lambda a, b: jnp.stack([a, b]), *warm_start)
+    mus = jnp.asarray([params.mu, params.mu_relaxed], points.dtype)
+    both = jax.vmap(
+        lambda mu, w: _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz_max, w)
+    )(mus, warm)
+    nominal, relaxed = (jax.tree.map(lambda a, k=k: a[k], both) for k in (0, 1))
     use_relaxed = nominal[3] > params.tolerance
     pick = jax.tree.map(lambda a, b: jnp.where(use_relaxed, b, a), nominal[:5], relaxed[:5])
     forces, angular, lin_res, violation, dual = pick

@@ -25,6 +25,7 @@ import jax
 import numpy as np
 from tqdm.auto import tqdm
 
+from jaxloco.control.presets import walking_config
 from jaxloco.control.wblc import WBLCConfig
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.locomotion import GaitParams, make_walking_controller
@@ -96,6 +97,7 @@ def run_sweep(
             "config": config,
             "gait": dataclasses.asdict(gait),
             "wblc_com_acc_limit": None if wblc is None else wblc.com_acc_limit,
+            "wblc_force_qp": dataclasses.asdict((wblc or walking_config()).force_qp),
             "physics": None if physics is None else dataclasses.asdict(physics),
             "backend": backend,
             "chunk_size": chunk_size,

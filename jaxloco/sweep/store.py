@@ -26,7 +26,16 @@ from jaxloco.sweep.spec import PushTable
 
 # What must match for a run directory to be resumed: outcomes of chunks already written
 # depend on every one of these (the backends, too, part ways after hard pushes).
-_SAME_SWEEP_KEYS = ("spec_digest", "chunk_size", "num_pushes", "gait", "physics", "backend")
+_SAME_SWEEP_KEYS = (
+    "spec_digest",
+    "chunk_size",
+    "num_pushes",
+    "gait",
+    "physics",
+    "backend",
+    "wblc_com_acc_limit",
+    "wblc_force_qp",
+)
 
 
 class SweepStore:
