@@ -351,3 +351,26 @@ def test_walk_steer_paper_schedule_completes(tmp_path):
     assert summary["max_heading_deg"] == pytest.approx(225.6, abs=0.1)
     assert summary["final_heading_deg"] == pytest.approx(0.0, abs=1e-3)
     assert summary["max_com_error_m"] < 0.05
+
+
+def test_render_gif_twice_headless_falls_back_without_aborting(tmp_path):
+    """Without a display or a headless GL backend, MuJoCo's GLFW renderer fails, and a
+    second attempt in the same process has aborted it: ``auto`` must draw stick figures."""
+    import os
+    import subprocess
+    import sys
+
+    script = (
+        "import numpy as np, sys\n"
+        "from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie\n"
+        "from jaxloco.sim.render import render_gif\n"
+        "m = load_valkyrie(); q = np.tile(keyframe_qpos(m, 'walk'), (3, 1))\n"
+        "for k in range(2):\n"
+        "    render_gif(m, q, f'{sys.argv[1]}/run{k}.gif', width=64, height=48)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k not in ("DISPLAY", "MUJOCO_GL")}
+    done = subprocess.run(
+        [sys.executable, "-c", script, str(tmp_path)], env=env, capture_output=True, timeout=300
+    )
+    assert done.returncode == 0, done.stderr.decode()[-2000:]
+    assert (tmp_path / "run0.gif").stat().st_size > 0 and (tmp_path / "run1.gif").exists()

@@ -12,8 +12,9 @@ with ``W_lin f = sum f_i`` and ``W_ang f = sum (p_i - c) x f_i``. Weights and bo
 to the authors' (``shared/reference/paper-details.md``). When the pyramid with ``mu`` cannot
 be met (the constraint violation after the iterations exceeds ``tolerance``), the solution
 with ``mu_relaxed`` (1.75, as the paper) is used instead and ``relaxed`` is set. The achieved
-angular part ``W_ang f`` is returned for Eq. 15. Shapes are static (a fixed number of points
-with an ``in_contact`` mask), so the solver batches with ``vmap``.
+angular part ``W_ang f`` is returned for Eq. 15. Both cones are solved every time, as one
+``vmap``-ed batch of two (the choice is made after the fact). Shapes are static (a fixed
+number of points with an ``in_contact`` mask), so the solver batches with ``vmap``.
 
 ADMM alone converges slowly on the badly conditioned cases (the 5000-weighted angular
 term); :func:`admm.polish` finishes every solve with a few active-set steps. Against

@@ -94,7 +94,7 @@ def wblc_config(hierarchy: str | tuple[str, ...] = "walking", **overrides) -> WB
 # accuracy target against quadprog from a cold start). Measured on two 6 s walks with a
 # 520 N push (float32, 12,000 ticks), against a cold 400-iteration solve of each tick's QP:
 # 400 warm-started iterations + 4 polish steps disagreed on the relaxed-cone flag at 34
-# ticks, 200 + 2 at 42, 100 + 4 at 65 and 50 + 4 at 521 (those relax the cone needlessly).
+# ticks, 200 + 2 at 42, 100 + 4 at 65 and 50 + 4 at 516 (those relax the cone needlessly).
 CLOSED_LOOP_QP = ForceQPParams(iterations=200, polish_steps=2)
 
 

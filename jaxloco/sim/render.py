@@ -9,6 +9,7 @@ written with Pillow.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import mujoco
@@ -112,7 +113,13 @@ def render_gif(
         if t >= times[keep[-1]] + 1.0 / fps - 1e-9:
             keep.append(i)
     frames = None
-    if backend in ("auto", "mujoco"):
+    # GLFW (MuJoCo's default GL backend) needs a display; without one a second attempt in
+    # the same process has aborted it (libc++ "recursive initialization"), so "auto" only
+    # tries MuJoCo's renderer where a headless backend is chosen or a display exists.
+    gl_possible = os.environ.get("MUJOCO_GL", "").lower() in ("egl", "osmesa") or bool(
+        os.environ.get("DISPLAY")
+    )
+    if backend == "mujoco" or (backend == "auto" and gl_possible):
         frames = _mujoco_frames(model, qpos[keep], width, height)
         if frames is None and backend == "mujoco":
             raise RuntimeError("MuJoCo's renderer could not start (set MUJOCO_GL=egl or osmesa)")
