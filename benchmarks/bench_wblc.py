@@ -217,7 +217,10 @@ def main():
         tq = time_calls(jq, *qp_args, repeats=repeats, inner=20)
         rows.append(
             dict(
-                case="stage: force QP (ADMM 400 + polish, mu and relaxed)",
+                case=(
+                    f"stage: force QP (ADMM {ctrl.config.force_qp.iterations} + "
+                    f"{ctrl.config.force_qp.polish_steps} polish steps, mu and relaxed)"
+                ),
                 per_tick_us=tq["median_s"] * 1e6,
             )
         )
