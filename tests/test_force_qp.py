@@ -251,7 +251,8 @@ def test_warm_started_closed_loop_settings_track_the_cold_solution():
         sol = solve_contact_forces(*args, fl, fa, CLOSED_LOOP_QP, fz_max=fz, warm_start=warm)
         return sol.warm_start, sol
 
-    zero = admm.zero_state(24, 59)
-    _, warm = jax.jit(lambda s: jax.lax.scan(tick, (zero, zero), s))(seq)
+    from jaxloco.control.force_qp import zero_warm_start
+
+    _, warm = jax.jit(lambda s: jax.lax.scan(tick, zero_warm_start(8), s))(seq)
     assert not bool(jnp.any(cold.relaxed)) and not bool(jnp.any(warm.relaxed))
     np.testing.assert_allclose(warm.forces[1:], cold.forces[1:], atol=1e-3)

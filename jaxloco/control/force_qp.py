@@ -141,6 +141,13 @@ def build_qp(points, in_contact, com, f_lin, f_ang, mu, params: ForceQPParams, f
     return P, q, A, lower, upper, w_ang
 
 
+def zero_warm_start(num_points: int, dtype=None) -> tuple:
+    """The ``warm_start`` of a first solve: zero ADMM states for both cones (the QP has
+    ``3 n`` variables and ``7 n + 3`` rows for ``n`` contact points)."""
+    zero = admm.zero_state(3 * num_points, 7 * num_points + 3, dtype)
+    return (zero, zero)
+
+
 def constraint_ops(n: int, mu):
     """``(x -> A x, y -> A' y)`` for :func:`build_qp`'s ``A`` without forming it: the
     sum of the forces, 4 pyramid rows per point and the identity of the bounds, O(n)
@@ -216,10 +223,8 @@ def solve_contact_forces(
     """
     points, com = jnp.asarray(points), jnp.asarray(com)
     f_lin, f_ang = jnp.asarray(f_lin, points.dtype), jnp.asarray(f_ang, points.dtype)
-    n = points.shape[0]
     if warm_start is None:
-        zero = admm.zero_state(3 * n, 7 * n + 3, points.dtype)
-        warm_start = (zero, zero)
+        warm_start = zero_warm_start(points.shape[0], points.dtype)
     # Both cones at once, as a batch of two: one pass of small ops instead of two.
     warm = jax.tree.map(lambda a, b: jnp.stack([a, b]), *warm_start)
     mus = jnp.asarray([params.mu, params.mu_relaxed], points.dtype)

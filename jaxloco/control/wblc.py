@@ -31,7 +31,7 @@ import mujoco
 from flax import struct
 from mujoco import mjx
 
-from jaxloco.control import admm, force_qp
+from jaxloco.control import force_qp
 from jaxloco.control.hierarchy import prioritized_accelerations
 from jaxloco.control.pinv import pinv_psd
 from jaxloco.control.tasks import (
@@ -177,10 +177,7 @@ class WBLC:
         }
 
     def initial_qp_state(self, dtype=None) -> tuple:
-        n = 3 * len(self.point_sites)
-        m = 3 + 4 * len(self.point_sites) + n
-        zero = admm.zero_state(n, m, dtype)
-        return (zero, zero)
+        return force_qp.zero_warm_start(len(self.point_sites), dtype)
 
     def __call__(
         self, qpos, qvel, refs, contact, gains=None, previous=None, snap=None
