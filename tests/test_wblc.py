@@ -104,6 +104,35 @@ def test_redundant_and_masked_levels_are_harmless():
     assert bool(jnp.all(jnp.isfinite(res.qdd)))
 
 
+def test_rank_threshold_ignores_row_units():
+    """A full-rank task whose rows differ in scale by 1e4 (a foot's rotation and
+    translation; light and heavy joints) is met exactly at a loose threshold: the rows are
+    whitened before the threshold is applied. Unwhitened, the small rows' eigenvalues fall
+    ~1e-8 below the largest and rtol = 1e-3 dropped them."""
+    nv = 12
+    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    jacs, cmds = random_tasks(RNG, nv, (6, 4))
+    scale = jnp.asarray([1.0, 1.0, 1.0, 1e-4, 1e-4, 1e-4])[:, None]
+    jacs[0], cmds[0] = jacs[0] * scale, cmds[0] * scale[:, 0]
+    res = prioritized_accelerations(jacs, cmds, a_inv, rtol=1e-3)
+    np.testing.assert_allclose(jacs[0] @ res.qdd, cmds[0], rtol=1e-9, atol=1e-14)
+    np.testing.assert_allclose(jacs[1] @ res.qdd, cmds[1], atol=1e-9)
+
+
+def test_command_columns_solve_like_separate_calls():
+    """The hierarchy is linear in the commands: (m_k, r) commands give r solutions."""
+    nv = 12
+    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    jacs, _ = random_tasks(RNG, nv, (3, 4, 8))
+    cols = [jnp.asarray(RNG.normal(size=(j.shape[0], 3))) for j in jacs]
+    res = prioritized_accelerations(jacs, cols, a_inv)
+    for c in range(3):
+        one = prioritized_accelerations(jacs, [x[:, c] for x in cols], a_inv)
+        np.testing.assert_allclose(res.qdd[:, c], one.qdd, atol=1e-10)
+        for r_all, r_one in zip(res.task_residuals, one.task_residuals, strict=True):
+            np.testing.assert_allclose(r_all[:, c], r_one, atol=1e-10)
+
+
 # --- WBLC on Valkyrie -------------------------------------------------------------------
 
 
@@ -248,24 +277,69 @@ def test_valkyrie_stands_10_s_under_wblc(valkyrie):
     assert tangential.max() < 0.65 * 1.5 * forces[..., 2].max()
 
 
+def test_h2_forces_match_the_motion():
+    """In H2 the CAM task sits below the body and partial-posture tasks, which leave it
+    almost no freedom; the force QP aims at the CAM rate the hierarchy's motion implies.
+    One tick away from rest: the floating-base rows of Eq. 17 hold and the body task is met.
+    (What the old PD target did to H2 shows only in closed loop: see the Fig. 10 test.)"""
+    model = load_valkyrie()
+    ctrl = make_wblc(model, wblc_config("H2", pinv_rtol=1e-2))
+    q = jnp.asarray(keyframe_qpos(model, "walk"))
+    refs = ctrl.hold_references(q)
+    refs["body_ori"] = refs["body_ori"].replace(
+        vel=jnp.asarray([0.3, -0.2, 0.5]), acc=jnp.asarray([2.0, 1.0, -3.0])
+    )
+    v = jnp.asarray(np.random.default_rng(11).normal(scale=0.1, size=model.nv))
+    out = jax.jit(lambda q, v: ctrl(q, v, refs, jnp.ones(2)))(q, v)
+    dg = out.diagnostics
+    assert not bool(dg.qp_relaxed)
+    assert float(jnp.max(jnp.abs(dg.base_residual))) < 1e-6
+    # The body task is met: nothing above it (contact, CoM) conflicts with it.
+    assert float(jnp.max(jnp.abs(dg.level_residuals[2]))) < 1e-6
+
+
+def test_shaking_feed_forward_is_the_reference_derivative():
+    """The shaking reference's angular velocity and acceleration against central
+    differences of its quaternion, through the ramp and after it."""
+    from mujoco.mjx._src import math as mjx_math
+
+    from jaxloco.control.shaking import ShakingParams, shaking_reference
+
+    params = ShakingParams(ramp=0.5)
+    q0 = jnp.asarray([0.9, 0.1, 0.2, 0.3]) / jnp.linalg.norm(jnp.asarray([0.9, 0.1, 0.2, 0.3]))
+    h = 1e-5
+    for t in (0.1, 0.3, 0.45, 0.8, 1.3):
+        _, w, a = shaking_reference(params, q0, t)
+        qp, wp, _ = shaking_reference(params, q0, t + h)
+        qm, wm, _ = shaking_reference(params, q0, t - h)
+        turn = mjx_math.quat_mul(qp, mjx_math.quat_inv(qm))  # ~ (1, w h)
+        np.testing.assert_allclose(w, turn[1:] / h, atol=1e-6)
+        np.testing.assert_allclose(a, (wp - wm) / (2 * h), atol=1e-5)
+        assert float(jnp.linalg.norm(w)) > 0.1
+
+
 # --- Fig. 10 experiment -----------------------------------------------------------------
 
 
 def test_body_shaking_ci_sized(tmp_path):
+    """1 s of Fig. 10 with the joint ranges lifted (WBLC does not model them): both
+    hierarchies track the body. Before the force QP aimed at the CAM rate H2's motion
+    implies, H2 fell here within the second (4e4 N m torques)."""
     import json
 
     from cli_helpers import run_cli
 
-    proc = run_cli(["body-shaking", "duration=0.3", "ramp=0.1"], tmp_path, timeout=900)
+    proc = run_cli(
+        ["body-shaking", "duration=1.0", "ramp=0.2", "joint_limits=false"], tmp_path, timeout=900
+    )
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = tmp_path / "run"
     assert (run / "body_shaking.png").stat().st_size > 10_000
     summary = json.loads((run / "body_shaking.json").read_text())
     for which in ("H1", "H2"):
         r = summary["results"][which]
-        assert not r["fell"] and r["simulated_s"] > 0.29
-        # A smoke bound: the reference reaches ~0.35 rad; tracking quality is the full run's job.
-        assert r["rms_body_error_rad"] < 0.3 and r["mean_torque_norm_Nm"] > 50
+        assert not r["fell"] and r["simulated_s"] > 0.99
+        assert r["rms_body_error_rad"] < 0.01 and 50 < r["mean_torque_norm_Nm"] < 400
     assert "h2_tracks_better" in summary and "h2_needs_more_torque" in summary
 
 
@@ -279,3 +353,18 @@ def test_body_shaking_full_defaults(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     summary = json.loads((tmp_path / "run" / "body_shaking.json").read_text())
     assert not any(r["fell"] for r in summary["results"].values())
+
+
+@pytest.mark.slow
+def test_body_shaking_without_joint_ranges_h2_tracks_better(tmp_path):
+    """The paper's claim (Fig. 10 b) holds on our model once the joint ranges, which WBLC
+    does not model, are lifted (measured: RMS 0.0088 rad for H2 against 0.0197 for H1)."""
+    import json
+
+    from cli_helpers import run_cli
+
+    proc = run_cli(["body-shaking", "joint_limits=false"], tmp_path, timeout=1800)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    summary = json.loads((tmp_path / "run" / "body_shaking.json").read_text())
+    assert not any(r["fell"] for r in summary["results"].values())
+    assert summary["h2_tracks_better"]

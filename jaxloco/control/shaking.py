@@ -1,14 +1,19 @@
 """The body-shaking reference of Section V-A (Fig. 10): an oscillating body orientation.
 
-A rotation vector ``(a_r sin wt, a_p sin(wt + pi/2), a_y sin wt)`` applied to the body's
-rest orientation ``q0``, its rate and acceleration as feed-forward (exact to first order in
-the angle), with the amplitude ramped up from zero over ``ramp`` seconds.
+A rotation vector ``r(t) = s(t) (a_r sin wt, a_p sin(wt + pi/2), a_y sin wt)`` applied to
+the body's rest orientation ``q0``, with the amplitude envelope ``s`` rising smoothly
+(3u^2 - 2u^3) from 0 to 1 over ``ramp`` seconds. The feed-forward is the exact world-frame
+angular velocity and acceleration of ``exp(r(t)) q0``, by differentiating the quaternion
+in time (``omega = 2 qdot q^-1``). The earlier feed-forward, ``rdot`` and ``rddot`` with
+the envelope held constant, was off by ~0.5 rad/s while the amplitude ramped and by
+``O(|r| |rdot|)`` after: it alone made body errors of ~0.1 rad under any hierarchy.
 """
 
 from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 from mujoco.mjx._src import math as mjx_math
 
@@ -36,17 +41,38 @@ class ShakingParams:
 
 
 def shaking_reference(params: ShakingParams, q0, t):
-    """Body orientation reference at time ``t``: (quaternion, angular velocity, acceleration)."""
+    """Body orientation reference at time ``t``: (quaternion, world-frame angular velocity,
+    angular acceleration)."""
+    t = jnp.asarray(t, jnp.result_type(float))
+    one = jnp.ones_like(t)
+    vel, acc = jax.jvp(lambda s: _angular_velocity(params, s), (t,), (one,))
+    return mjx_math.quat_mul(_exp(_rotation_vector(params, t)), q0), vel, acc
+
+
+def _rotation_vector(params: ShakingParams, t):
     w = 2 * jnp.pi * params.frequency_hz
     amp = jnp.asarray([params.roll_amplitude, params.pitch_amplitude, params.yaw_amplitude])
     phase = jnp.asarray([0.0, jnp.pi / 2, 0.0])
-    ramp = jnp.clip(t / params.ramp, 0.0, 1.0) if params.ramp > 0 else 1.0
-    rot = ramp * amp * jnp.sin(w * t + phase)
-    vel = ramp * amp * w * jnp.cos(w * t + phase)
-    acc = -ramp * amp * w**2 * jnp.sin(w * t + phase)
-    return mjx_math.quat_mul(_exp(rot), q0), vel, acc
+    if params.ramp > 0:
+        u = jnp.clip(t / params.ramp, 0.0, 1.0)
+        envelope = u * u * (3.0 - 2.0 * u)
+    else:
+        envelope = 1.0
+    return envelope * amp * jnp.sin(w * t + phase)
+
+
+def _angular_velocity(params: ShakingParams, t):
+    quat, quat_dot = jax.jvp(lambda s: _exp(_rotation_vector(params, s)), (t,), (jnp.ones_like(t),))
+    return 2.0 * mjx_math.quat_mul(quat_dot, mjx_math.quat_inv(quat))[1:]
 
 
 def _exp(rotvec):
-    angle = jnp.sqrt(rotvec @ rotvec + 1e-30)
-    return jnp.concatenate([jnp.cos(angle / 2)[None], jnp.sin(angle / 2) / angle * rotvec])
+    """Unit quaternion of a rotation vector, smooth (with its derivatives) at zero: both
+    ``cos(|r|/2)`` and ``sin(|r|/2)/|r|`` are taken as functions of ``|r|^2``."""
+    sq = rotvec @ rotvec
+    small = sq < 1e-8
+    safe = jnp.where(small, 1.0, sq)
+    angle = jnp.sqrt(safe)
+    cos_half = jnp.where(small, 1.0 - sq / 8.0 + sq * sq / 384.0, jnp.cos(angle / 2))
+    sinc_half = jnp.where(small, 0.5 - sq / 48.0 + sq * sq / 3840.0, jnp.sin(angle / 2) / angle)
+    return jnp.concatenate([cos_half[None], sinc_half * rotvec])

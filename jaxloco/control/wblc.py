@@ -4,10 +4,12 @@ One tick, for a state ``(qpos, qvel)``, task references, a contact set and the p
 tick's QP solution:
 
 1. every task's Jacobian, ``Jdot qd`` and desired acceleration (:mod:`.tasks`);
-2. the reaction-force QP of Eq. 14 (:mod:`.force_qp`): the CoM task's acceleration as the
-   hard linear part ``m (xdd_com^d + g)``, the CAM task's rate as the soft angular part;
-   the angular rate the forces achieve becomes the CAM task's command (Eq. 15);
-3. the hierarchy of Eq. 9-10 (:mod:`.hierarchy`) over the levels of ``config.hierarchy``;
+2. the hierarchy of Eq. 9-10 (:mod:`.hierarchy`) over the levels of ``config.hierarchy``,
+   with the CAM command left as a free term (the map is linear in it);
+3. the reaction-force QP of Eq. 14 (:mod:`.force_qp`): the CoM task's acceleration as the
+   hard linear part ``m (xdd_com^d + g)``, the CAM rate the hierarchy's motion implies as
+   the soft angular part (the CAM task's PD command wherever the CAM is free in the
+   hierarchy); the rate the forces achieve sets the CAM task's command (Eq. 15);
 4. torques by Eq. 16-19: ``[U', -A N] [tau; qdd_res] = A qdd_task + b + g - J_r' F_r``,
    solved by a thresholded pseudo-inverse.
 
@@ -258,30 +260,57 @@ def wblc_tick(
         scale = jnp.minimum(1.0, cfg.com_acc_limit / jnp.maximum(norm, 1e-9))
         terms[cfg.com_task] = com.replace(desired=com.desired.at[:2].set(horizontal * scale))
 
-    # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft.
+    # The hierarchy (Eq. 9-10) is linear in the commands: solve it for the tasks' commands
+    # (column 0) and for unit changes of the CAM command (columns 1-3), so the CAM command
+    # can be set after the force QP without a second pass.
+    cam_name = cfg.cam_task
+    jacs, cmds = [], []
+    for level in cfg.hierarchy:
+        names = level.split("+")
+        jacs.append(jnp.concatenate([terms[n].jacobian for n in names], axis=0))
+        cmds.append(
+            jnp.concatenate(
+                [
+                    jnp.concatenate(
+                        [
+                            (terms[n].desired - terms[n].jdot_qdot)[:, None],
+                            refs[cam_name].weight * jnp.eye(3, dtype=dtype)
+                            if n == cam_name
+                            else jnp.zeros((terms[n].desired.shape[0], 3), dtype),
+                        ],
+                        axis=1,
+                    )
+                    for n in names
+                ]
+            )
+        )
+    chol = jax.scipy.linalg.cho_factor(snap.mass_matrix)
+    mass_inv = jax.scipy.linalg.cho_solve(chol, jnp.eye(mx.nv, dtype=dtype))
+    hier = prioritized_accelerations(jacs, cmds, mass_inv, cfg.pinv_rtol)
+
+    # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft. The angular target is
+    # the CAM rate the hierarchy's motion implies. Where the CAM task is free in the
+    # hierarchy (H1, walking), that is its PD command, the paper's choice; where tasks above
+    # it fix the CAM (H2's body and partial posture take every free dof), it is the rate
+    # those tasks need, and forces aiming elsewhere would leave the floating-base rows of
+    # Eq. 17 unmet.
+    cam_rate = snap.centroidal_matrix[:3] @ hier.qdd[:, 0] + snap.centroidal_bias[:3]
     qp = cfg.force_qp
     gravity = -mx.opt.gravity
     f_lin = snap.total_mass * (terms[cfg.com_task].desired + gravity)
-    f_ang = terms[cfg.cam_task].desired
     points = d.site_xpos[jnp.asarray(ctrl.point_sites)]
     weight = contact[jnp.asarray(ctrl.foot_of_point)]
     fz_max = qp.fz_min + weight * (qp.fz_max - qp.fz_min)
     previous = ctrl.initial_qp_state(dtype) if previous is None else previous
     sol = force_qp.solve_contact_forces(
-        points, weight > 0, snap.com, f_lin, f_ang, qp, fz_max=fz_max, warm_start=previous
+        points, weight > 0, snap.com, f_lin, cam_rate, qp, fz_max=fz_max, warm_start=previous
     )
-    # Eq. 15: the CAM task follows what the forces can do.
-    cam = terms[cfg.cam_task]
-    terms[cfg.cam_task] = cam.replace(desired=refs[cfg.cam_task].weight * sol.angular)
-
-    jacs, cmds = [], []
-    for level in cfg.hierarchy:
-        names = level.split("+")
-        jacs.append(jnp.concatenate([terms[n].jacobian for n in names], axis=0))
-        cmds.append(jnp.concatenate([terms[n].desired - terms[n].jdot_qdot for n in names]))
-    chol = jax.scipy.linalg.cho_factor(snap.mass_matrix)
-    mass_inv = jax.scipy.linalg.cho_solve(chol, jnp.eye(mx.nv, dtype=dtype))
-    hier = prioritized_accelerations(jacs, cmds, mass_inv, cfg.pinv_rtol)
+    # Eq. 15: the CAM task follows what the forces can do. Shifting its command by the
+    # shortfall gives the paper's command (the achieved rate) where the CAM is free.
+    shift = jnp.concatenate([jnp.ones(1, dtype), sol.angular - cam_rate])
+    qdd_task = hier.qdd @ shift
+    level_residuals = tuple(r @ shift for r in hier.task_residuals)
+    terms[cam_name] = terms[cam_name].replace(desired=terms[cam_name].desired + shift[1:])
 
     # Torques, Eq. 16-19.
     j_r = jnp.concatenate(
@@ -292,7 +321,7 @@ def wblc_tick(
         axis=0,
     )
     tau_task = (
-        snap.mass_matrix @ hier.qdd + snap.coriolis + snap.gravity - j_r.T @ sol.forces.reshape(-1)
+        snap.mass_matrix @ qdd_task + snap.coriolis + snap.gravity - j_r.T @ sol.forces.reshape(-1)
     )
     a_null = snap.mass_matrix @ hier.null_space
     system = jnp.concatenate([ctrl.selection.T, -a_null], axis=1)  # (nv, nu + nv)
@@ -303,7 +332,7 @@ def wblc_tick(
     base_residual = residual[jnp.asarray(ctrl.unactuated_dofs)]
 
     diagnostics = WBLCDiagnostics(
-        qdd_desired=hier.qdd + hier.null_space @ qdd_res,
+        qdd_desired=qdd_task + hier.null_space @ qdd_res,
         contact_forces=sol.forces,
         cam_rate_achieved=sol.angular,
         qp_relaxed=sol.relaxed,
@@ -312,6 +341,6 @@ def wblc_tick(
         base_residual=base_residual,
         torque_over_limit=jnp.abs(torques) > ctrl.torque_limits,
         task_errors={n: t.error for n, t in terms.items()},
-        level_residuals=hier.task_residuals,
+        level_residuals=level_residuals,
     )
     return WBLCOutput(torques, diagnostics, sol.warm_start)
