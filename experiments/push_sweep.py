@@ -24,6 +24,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
 from jaxloco.config import config_schema, to_params
+from jaxloco.control.presets import walking_config
 from jaxloco.locomotion import GaitParams
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog
 from jaxloco.sim.mjx_loop import PhysicsParams
@@ -48,6 +49,10 @@ class PushSweepConfig:
     """Threads of the C backend (0: all cores)."""
     max_chunks: int = 0
     """Stop after this many new chunks (0: run all); run again to go on."""
+    pinv_rtol: float = 1e-2
+    """The walking WBLC's rank threshold (``WBLCConfig.pinv_rtol``)."""
+    whiten_tasks: bool = True
+    """Threshold in whitened task rows (``WBLCConfig.whiten_tasks``)."""
     timeout_s: float = 3600.0
     """Watchdog: the run fails loudly (stack dump, exit 1) past this."""
     dpi: int = 120
@@ -71,6 +76,7 @@ def main(cfg) -> None:
             gait=to_params(GaitParams, cfg.gait),
             physics=to_params(PhysicsParams, cfg.physics),
             nthread=cfg.nthread or None,
+            wblc=walking_config(pinv_rtol=cfg.pinv_rtol, whiten_tasks=cfg.whiten_tasks),
             config=OmegaConf.to_container(cfg, resolve=True),
             max_chunks=cfg.max_chunks or None,
         )

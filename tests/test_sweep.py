@@ -72,6 +72,8 @@ def test_store_resumes_and_refuses_another_sweep(tmp_path):
         SweepStore(other).open(dict(settings, physics={"torque_limit": None}), table)
     with pytest.raises(ValueError, match="backend"):
         SweepStore(other).open(dict(settings, backend="mjx"), table)
+    with pytest.raises(ValueError, match="wblc_hierarchy"):
+        SweepStore(other).open(dict(settings, wblc_hierarchy={"pinv_rtol": 1e-3}), table)
     _, out, have = store.load_results()
     assert have.tolist() == [False, True] and out["recovered"][1]
     assert not list(tmp_path.glob("chunks/*.tmp*"))

@@ -146,6 +146,44 @@ def test_closed_loop_gradients_match_finite_differences_and_tuning_lowers_the_lo
     assert res.best_loss < losses[0] and losses[-1] < losses[0]
 
 
+def test_shaking_loss_averages_over_its_frequencies():
+    """``frequencies=(a, b)`` is one batch of rollouts whose loss is the mean of the
+    single-frequency losses (each built the old way, from ``ShakingParams.frequency_hz``)."""
+    from jaxloco.control.shaking import ShakingParams, shaking_reference
+    from jaxloco.dynamics.model import load_valkyrie
+    from jaxloco.tuning.problems import ShakingLossParams, shaking_loss
+    from jaxloco.tuning.rollout import tuning_physics
+
+    q0 = jnp.asarray([1.0, 0.0, 0.0, 0.0])
+    for got, want in zip(
+        shaking_reference(ShakingParams(), q0, 0.7, jnp.asarray(2.5)),
+        shaking_reference(ShakingParams(frequency_hz=2.5), q0, 0.7),
+        strict=True,
+    ):
+        np.testing.assert_allclose(got, want, atol=1e-12)
+    with pytest.raises(ValueError, match="ShakingLossParams.frequencies"):
+        ShakingLossParams(frequencies=(1.0, 0.0))
+
+    model = tuning_physics(load_valkyrie())
+    space = GainSpace(("body_ori.kp",))
+    pushes = jnp.zeros((1, 4))
+
+    def value(frequencies=(), frequency_hz=1.0):
+        problem = ShakingLossParams(horizon=0.03, segment=30, frequencies=frequencies)
+        loss, p0, _ = shaking_loss(
+            model, space, problem, ShakingParams(ramp=0.0, frequency_hz=frequency_hz)
+        )
+        p = {k: v + 0.3 for k, v in p0.items()}
+        return jax.jit(loss)(p, pushes)
+
+    both, costs = value(frequencies=(1.5, 3.0))
+    one, one_costs = value(frequency_hz=1.5)
+    other, _ = value(frequency_hz=3.0)
+    assert abs(float(one) - float(other)) > 1e-3 * abs(float(one))  # the frequency matters
+    np.testing.assert_allclose(float(both), (float(one) + float(other)) / 2, rtol=1e-9)
+    assert float(costs["track"]) > float(one_costs["track"]) > 0
+
+
 @pytest.mark.slow
 def test_tune_gains_cli_end_to_end(tmp_path):
     import json

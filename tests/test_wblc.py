@@ -117,6 +117,11 @@ def test_rank_threshold_ignores_row_units():
     res = prioritized_accelerations(jacs, cmds, a_inv, rtol=1e-3)
     np.testing.assert_allclose(jacs[0] @ res.qdd, cmds[0], rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(jacs[1] @ res.qdd, cmds[1], atol=1e-9)
+    # whiten=False (the threshold in the rows' own units) drops the small rows.
+    raw = prioritized_accelerations(jacs, cmds, a_inv, rtol=1e-3, whiten=False)
+    missed = np.abs(np.asarray(jacs[0] @ raw.qdd - cmds[0]))
+    assert missed[3:].max() > 1e-2 * np.abs(np.asarray(cmds[0][3:])).max()
+    np.testing.assert_allclose(jacs[0][:3] @ raw.qdd, cmds[0][:3], rtol=1e-6)
 
 
 def test_command_columns_solve_like_separate_calls():

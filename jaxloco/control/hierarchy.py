@@ -14,8 +14,8 @@ higher-priority task acceleration unchanged, in the metric of the mass matrix. T
 task that is redundant with the ones above it, or masked to zero rows, is handled without
 special cases. Each task's rows are first whitened (:func:`whiten_task`), so the rank
 threshold reads as "the fraction of a task direction left free by the levels above",
-whatever the units of its rows. The levels are a Python sequence of static shapes: the loop unrolls at
-trace time and the result batches with ``vmap``.
+whatever the units of its rows. The levels are a Python sequence of static shapes: the
+loop unrolls at trace time and the result batches with ``vmap``.
 """
 
 from __future__ import annotations
@@ -71,12 +71,16 @@ def prioritized_accelerations(
     commands: Sequence[jax.Array],
     mass_inv: jax.Array,
     rtol: float = 1e-8,
+    whiten: bool = True,
 ) -> HierarchyResult:
     """Joint accelerations for tasks in priority order (first = highest), Eq. 9-10.
 
     ``jacobians[k]`` is ``(m_k, nv)``; ``commands[k]`` is ``e_k = xdd_k^d - Jdot_k qd``,
     ``(m_k,)`` or ``(m_k, r)``: the map is linear in the commands, so ``r`` columns of
     commands give ``r`` columns of ``qdd`` and residuals from one pass.
+    ``whiten``: threshold each level in whitened rows (:func:`whiten_task`, ``rtol`` is then
+    the fraction of a task direction left free); ``False`` thresholds relative to the
+    unprojected task's largest diagonal entry of ``J A^-1 J'``, in the units of its rows.
     """
     if len(jacobians) != len(commands) or not jacobians:
         raise ValueError("prioritized_accelerations: need one command per Jacobian, >= 1 task")
@@ -85,11 +89,17 @@ def prioritized_accelerations(
     null = eye
     qdd = jnp.zeros((nv, *jnp.shape(commands[0])[1:]), mass_inv.dtype)
     for jac, cmd in zip(jacobians, commands, strict=True):
-        jac_w, cmd_w = whiten_task(jac, cmd, mass_inv)
-        projected = jac_w @ null  # J_{k|prec(k)}, whitened rows
-        # Whitened, the unprojected task's J A^-1 J' is I: each eigenvalue of the projected
-        # one is the fraction of a task direction that the levels above leave free.
-        jbar = dynamically_consistent_inverse(projected, mass_inv, rtol, jnp.ones((), qdd.dtype))
+        if whiten:
+            jac_w, cmd_w = whiten_task(jac, cmd, mass_inv)
+            # Whitened, the unprojected task's J A^-1 J' is I: each eigenvalue of the
+            # projected one is the fraction of a task direction the levels above leave free.
+            scale = jnp.ones((), qdd.dtype)
+        else:
+            jac_w, cmd_w = jac, cmd
+            # Rank judged against the task's own size before projection (see pinv_psd).
+            scale = jnp.max(jnp.sum((jac @ mass_inv) * jac, axis=1))
+        projected = jac_w @ null  # J_{k|prec(k)}
+        jbar = dynamically_consistent_inverse(projected, mass_inv, rtol, scale)
         qdd = qdd + jbar @ (cmd_w - jac_w @ qdd)
         null = null @ (eye - jbar @ projected)
     residuals = tuple(cmd - jac @ qdd for jac, cmd in zip(jacobians, commands, strict=True))

@@ -40,17 +40,19 @@ class ShakingParams:
             raise ValueError(f"ShakingParams.ramp must be >= 0 s; got {self.ramp}")
 
 
-def shaking_reference(params: ShakingParams, q0, t):
+def shaking_reference(params: ShakingParams, q0, t, frequency_hz=None):
     """Body orientation reference at time ``t``: (quaternion, world-frame angular velocity,
-    angular acceleration)."""
+    angular acceleration). ``frequency_hz`` (may be traced, e.g. vmapped over a batch of
+    frequencies) overrides ``params.frequency_hz``."""
     t = jnp.asarray(t, jnp.result_type(float))
+    freq = params.frequency_hz if frequency_hz is None else frequency_hz
     one = jnp.ones_like(t)
-    vel, acc = jax.jvp(lambda s: _angular_velocity(params, s), (t,), (one,))
-    return mjx_math.quat_mul(_exp(_rotation_vector(params, t)), q0), vel, acc
+    vel, acc = jax.jvp(lambda s: _angular_velocity(params, s, freq), (t,), (one,))
+    return mjx_math.quat_mul(_exp(_rotation_vector(params, t, freq)), q0), vel, acc
 
 
-def _rotation_vector(params: ShakingParams, t):
-    w = 2 * jnp.pi * params.frequency_hz
+def _rotation_vector(params: ShakingParams, t, frequency_hz):
+    w = 2 * jnp.pi * frequency_hz
     amp = jnp.asarray([params.roll_amplitude, params.pitch_amplitude, params.yaw_amplitude])
     phase = jnp.asarray([0.0, jnp.pi / 2, 0.0])
     if params.ramp > 0:
@@ -61,8 +63,10 @@ def _rotation_vector(params: ShakingParams, t):
     return envelope * amp * jnp.sin(w * t + phase)
 
 
-def _angular_velocity(params: ShakingParams, t):
-    quat, quat_dot = jax.jvp(lambda s: _exp(_rotation_vector(params, s)), (t,), (jnp.ones_like(t),))
+def _angular_velocity(params: ShakingParams, t, frequency_hz):
+    quat, quat_dot = jax.jvp(
+        lambda s: _exp(_rotation_vector(params, s, frequency_hz)), (t,), (jnp.ones_like(t),)
+    )
     return 2.0 * mjx_math.quat_mul(quat_dot, mjx_math.quat_inv(quat))[1:]
 
 

@@ -98,6 +98,10 @@ def run_sweep(
             "gait": dataclasses.asdict(gait),
             "wblc_com_acc_limit": None if wblc is None else wblc.com_acc_limit,
             "wblc_force_qp": dataclasses.asdict((wblc or walking_config()).force_qp),
+            "wblc_hierarchy": {
+                k: getattr(wblc or walking_config(), k)
+                for k in ("pinv_rtol", "whiten_tasks", "torque_pinv_rtol")
+            },
             "physics": None if physics is None else dataclasses.asdict(physics),
             "backend": backend,
             "chunk_size": chunk_size,

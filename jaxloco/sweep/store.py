@@ -35,6 +35,7 @@ _SAME_SWEEP_KEYS = (
     "backend",
     "wblc_com_acc_limit",
     "wblc_force_qp",
+    "wblc_hierarchy",
 )
 
 

@@ -45,6 +45,10 @@ class ShakingLossParams:
     pass ran over 14 minutes on CPU and was stopped (1: 200 s; measured)."""
     pinv_rtol: float = 1e-2
     """The hierarchy's rank threshold (as in ``experiments/body_shaking.py``)."""
+    frequencies: tuple[float, ...] = ()
+    """Shaking frequencies (Hz) the loss averages over, one rollout per frequency and push;
+    empty: the shaking's own ``frequency_hz`` only. Gains tuned at one frequency overfit it
+    (session 9: the held-out error at 1.5 Hz doubled after tuning at 1 Hz)."""
     track_weight: float = 1.0
     effort_weight: float = 0.01
     torque_scale: float = 300.0
@@ -62,6 +66,10 @@ class ShakingLossParams:
                 raise ValueError(f"ShakingLossParams.{name} must be >= 0")
         if self.segment < 1:
             raise ValueError(f"ShakingLossParams.segment must be >= 1; got {self.segment}")
+        if not all(0 < f <= 10 for f in self.frequencies):
+            raise ValueError(
+                f"ShakingLossParams.frequencies must be in (0, 10] Hz; got {self.frequencies}"
+            )
 
 
 def horizon_steps(model: mujoco.MjModel, params: ShakingLossParams) -> int:
@@ -80,9 +88,9 @@ def shaking_loss(
 
     ``loss_fn(gain_params, pushes) -> (loss, costs)``: ``pushes`` is ``(B, 4)`` rows
     ``(magnitude N, direction rad, start s, duration s)`` on the pelvis, one rollout per row
-    (use a zero-magnitude row for no push); ``costs`` holds each term averaged over the
-    batch. ``model`` must be a physics model with one solver iteration
-    (:func:`~jaxloco.tuning.rollout.tuning_physics`).
+    and frequency of ``params.frequencies`` (use a zero-magnitude row for no push);
+    ``costs`` holds each term averaged over the batch. ``model`` must be a physics model
+    with one solver iteration (:func:`~jaxloco.tuning.rollout.tuning_physics`).
     """
     check_differentiable(model)
     ctrl = make_wblc(model, body_shaking_config(params.hierarchy, pinv_rtol=params.pinv_rtol))
@@ -94,14 +102,15 @@ def shaking_loss(
     base = ctrl.default_gains()
     steps = horizon_steps(model, params)
     pelvis = body_index(model, "pelvis")
+    frequencies = params.frequencies or (shaking.frequency_hz,)
 
     def loss_fn(gain_params, pushes):
         gains = space.gains(gain_params, base)
         dtype = jax.tree.leaves(gain_params)[0].dtype
         q0 = refs0["body_ori"].pos.astype(dtype)
 
-        def controller(t, qpos, qvel, prev):
-            quat, vel, acc = shaking_reference(shaking, q0, t)
+        def controller(t, qpos, qvel, prev, frequency):
+            quat, vel, acc = shaking_reference(shaking, q0, t, frequency)
             refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
             snap = ctrl.snapshot(qpos, qvel)
             out = ctrl(qpos, qvel, refs, contact, gains=gains, previous=prev, snap=snap)
@@ -114,11 +123,11 @@ def shaking_loss(
             }
             return out.torques, out.qp_state, costs
 
-        def one(push):
+        def one(push, frequency):
             state = init_loop_state(mx, qpos0.astype(dtype), ctrl.initial_qp_state(dtype))
             final, costs = mean_costs(
                 mx,
-                controller,
+                lambda t, q, v, prev: controller(t, q, v, prev, frequency),
                 state,
                 steps,
                 params.segment,
@@ -132,7 +141,9 @@ def shaking_loss(
             costs["fallen"] = fallen.astype(dtype)
             return costs
 
-        costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), jax.vmap(one)(pushes))
+        freqs = jnp.asarray(frequencies, dtype)
+        batch = jax.vmap(jax.vmap(one, (None, 0)), (0, None))(pushes, freqs)
+        costs = jax.tree.map(lambda v: jnp.mean(v, axis=(0, 1)), batch)
         loss = (
             params.track_weight * costs["track"]
             + params.effort_weight * costs["effort"]
