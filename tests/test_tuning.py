@@ -146,13 +146,9 @@ def test_closed_loop_gradients_match_finite_differences_and_tuning_lowers_the_lo
     assert res.best_loss < losses[0] and losses[-1] < losses[0]
 
 
-def test_shaking_loss_averages_over_its_frequencies():
-    """``frequencies=(a, b)`` is one batch of rollouts whose loss is the mean of the
-    single-frequency losses (each built the old way, from ``ShakingParams.frequency_hz``)."""
+def test_shaking_reference_takes_a_traced_frequency_and_loss_frequencies_validate():
     from jaxloco.control.shaking import ShakingParams, shaking_reference
-    from jaxloco.dynamics.model import load_valkyrie
-    from jaxloco.tuning.problems import ShakingLossParams, shaking_loss
-    from jaxloco.tuning.rollout import tuning_physics
+    from jaxloco.tuning.problems import ShakingLossParams
 
     q0 = jnp.asarray([1.0, 0.0, 0.0, 0.0])
     for got, want in zip(
@@ -163,6 +159,17 @@ def test_shaking_loss_averages_over_its_frequencies():
         np.testing.assert_allclose(got, want, atol=1e-12)
     with pytest.raises(ValueError, match="ShakingLossParams.frequencies"):
         ShakingLossParams(frequencies=(1.0, 0.0))
+
+
+@pytest.mark.slow
+def test_shaking_loss_averages_over_its_frequencies():
+    """``frequencies=(a, b)`` is one batch of rollouts whose loss is the mean of the
+    single-frequency losses (each built the old way, from ``ShakingParams.frequency_hz``).
+    Slow: three compiles of the MJX rollout (~3 min)."""
+    from jaxloco.control.shaking import ShakingParams
+    from jaxloco.dynamics.model import load_valkyrie
+    from jaxloco.tuning.problems import ShakingLossParams, shaking_loss
+    from jaxloco.tuning.rollout import tuning_physics
 
     model = tuning_physics(load_valkyrie())
     space = GainSpace(("body_ori.kp",))
