@@ -90,6 +90,7 @@ def run_sweep(
     table = expand(spec)
     store = SweepStore(run_dir, writer=jax.process_index() == 0)
     chunks = _chunks(len(table), chunk_size)
+    controller_config = wblc or walking_config()  # what make_walking_controller uses too
     store.open(
         {
             "spec_digest": spec.digest(),
@@ -97,9 +98,9 @@ def run_sweep(
             "config": config,
             "gait": dataclasses.asdict(gait),
             "wblc_com_acc_limit": None if wblc is None else wblc.com_acc_limit,
-            "wblc_force_qp": dataclasses.asdict((wblc or walking_config()).force_qp),
+            "wblc_force_qp": dataclasses.asdict(controller_config.force_qp),
             "wblc_hierarchy": {
-                k: getattr(wblc or walking_config(), k)
+                k: getattr(controller_config, k)
                 for k in ("pinv_rtol", "whiten_tasks", "torque_pinv_rtol")
             },
             "physics": None if physics is None else dataclasses.asdict(physics),
