@@ -1,8 +1,10 @@
 """Test configuration: float64 everywhere (precision matters in the reference checks),
 ``--runslow`` for the full-size end-to-end runs (CI runs their small versions), and one
-persistent XLA compilation cache for the session, so tests that build the same controller
+persistent XLA compilation cache per test process, so tests that build the same controller
 (walking, sweeps, experiments) compile it once. The cache lives in a fresh temporary
-folder: every session compiles from scratch, nothing carries over between runs."""
+folder: every session compiles from scratch, nothing carries over between runs. Under
+``pytest -n 2 --dist loadfile`` (``make test``) each worker has its own cache and runs
+whole files, so the tests of one file still share their compiles."""
 
 import os
 import tempfile
