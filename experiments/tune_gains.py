@@ -8,15 +8,17 @@
 
 Tuning: Valkyrie stands in double support in MJX (one solver iteration, so gradients
 flow) while its body follows the shaking reference; the loss is the body-orientation
-error plus effort (and the CoM drift and falls of any training pushes), see
-:mod:`jaxloco.tuning.problems`. Optax minimises it over log-scales of the named gains.
+error plus effort (and the CoM drift and falls of any training pushes, and with
+``problem.slip_weight`` the creep of the feet), see :mod:`jaxloco.tuning.problems`. Optax
+minimises it over log-scales of the named gains.
 
 Held-out measure: the hand-set and the tuned gains each run the body-shaking experiment
 on MuJoCo's C engine with its default solver, for ``heldout_duration`` s at every
-frequency in ``heldout_frequencies`` (tuning sees only ``shaking.frequency_hz`` over
-``problem.horizon``). Writes ``tuned_gains.json`` (load it anywhere with
-``gains_file=...``), ``history.json``, ``loss_curve.png``, ``before_after.png`` and
-``summary.json`` to the run directory.
+frequency in ``heldout_frequencies`` (tuning sees only ``shaking.frequency_hz``, or
+``problem.frequencies``, over ``problem.horizon``), and reports how far the feet crept
+(``final_foot_slip_m``). Writes ``tuned_gains.json`` (load it anywhere with
+``gains_file=...``), ``history.json``, ``loss_curve.png``, ``before_after.png`` (body
+error, torque and foot creep) and ``summary.json`` to the run directory.
 """
 
 import dataclasses
@@ -103,7 +105,7 @@ def plot_curve(history, path: Path, dpi: int):
     ax_it.set(xlabel="iteration", ylabel="loss", title="tuning loss")
     top = ax_it.secondary_xaxis("top", functions=(lambda x: x, lambda x: x))
     top.set_xlabel(f"wall time: {history[-1]['wall_s']:.0f} s for {len(history)} iterations")
-    for term in ("track", "effort", "com", "fallen"):
+    for term in ("track", "effort", "com", "slip", "fallen"):
         if term in history[0]:
             ax_terms.semilogy(it, [max(h[term], 1e-12) for h in history], label=term)
     ax_terms.set(xlabel="iteration", title="loss terms (unweighted)")
@@ -115,8 +117,8 @@ def plot_curve(history, path: Path, dpi: int):
 
 def plot_before_after(before, after, path: Path, dpi: int):
     freqs = list(before)
-    fig = Figure(figsize=(10, 3.2 * len(freqs)), constrained_layout=True)
-    axes = np.atleast_2d(fig.subplots(len(freqs), 2, squeeze=False))
+    fig = Figure(figsize=(14, 3.2 * len(freqs)), constrained_layout=True)
+    axes = np.atleast_2d(fig.subplots(len(freqs), 3, squeeze=False))
     for row, f in enumerate(freqs):
         for name, runs, color in (("hand-set", before, "tab:gray"), ("tuned", after, "tab:blue")):
             r = runs[f]
@@ -135,8 +137,16 @@ def plot_before_after(before, after, path: Path, dpi: int):
                 color=color,
                 label=f"{name} (mean {m['mean_torque_norm_Nm']:.0f} N m)",
             )
+            axes[row, 2].plot(
+                r["time"],
+                100 * r["log"]["foot_slip"],
+                lw=1,
+                color=color,
+                label=f"{name} (final {100 * m['final_foot_slip_m']:.1f} cm)",
+            )
         axes[row, 0].set(ylabel="body error (rad)", title=f"held out: shaking at {f} Hz")
         axes[row, 1].set(ylabel="|tau| (N m)", title="torque norm")
+        axes[row, 2].set(ylabel="foot slip (cm)", title="largest contact-point creep")
         for ax in axes[row]:
             ax.grid(alpha=0.3)
             ax.legend(fontsize=8)
@@ -224,7 +234,9 @@ def main(cfg) -> None:
         print(
             f"held out {f} Hz: RMS body error {h['rms_body_error_rad']:.4f} -> "
             f"{t['rms_body_error_rad']:.4f} rad, mean |tau| {h['mean_torque_norm_Nm']:.0f} -> "
-            f"{t['mean_torque_norm_Nm']:.0f} N m"
+            f"{t['mean_torque_norm_Nm']:.0f} N m, final foot slip "
+            f"{100 * h['final_foot_slip_m']:.1f} -> {100 * t['final_foot_slip_m']:.1f} cm"
+            + (" (tuned FELL)" if t["fell"] else "")
         )
     print(f"tuned gains: {out_dir / 'tuned_gains.json'} (use gains_file=... elsewhere)")
 

@@ -113,8 +113,9 @@ def test_gradient_step_planner_takes_safe_steps_from_the_nominal_and_pushed_stat
 
 
 def test_closed_loop_gradients_match_finite_differences_and_tuning_lowers_the_loss():
-    """Forward-mode gradients through 60 ticks of WBLC + mjx.step (body shaking, float64)
-    against central differences; then three Adam steps on the same compiled function."""
+    """Forward-mode gradients through 60 ticks of WBLC + mjx.step (body shaking, float64,
+    every loss term weighted, the feet's slip too) against central differences; then four
+    Adam steps on the same compiled function."""
     from jaxloco.control.shaking import ShakingParams
     from jaxloco.dynamics.model import load_valkyrie
     from jaxloco.tuning.optimize import value_and_grad
@@ -124,13 +125,15 @@ def test_closed_loop_gradients_match_finite_differences_and_tuning_lowers_the_lo
     model = tuning_physics(load_valkyrie())
     space = GainSpace(("body_ori.kp", "body_ori.kd"))
     # Start mid-swing (no ramp) so the body error is large from the first tick.
-    problem = ShakingLossParams(horizon=0.06, segment=20)
+    problem = ShakingLossParams(horizon=0.06, segment=20, slip_weight=100.0)
     loss, p0, _ = shaking_loss(model, space, problem, ShakingParams(ramp=0.0, frequency_hz=2.0))
     pushes = jnp.zeros((1, 4))
     fn = lambda p: loss(p, pushes)  # noqa: E731
     vg = jax.jit(value_and_grad(fn, "forward"))
     (l0, aux), g = vg(p0)
     assert np.isfinite(float(l0)) and float(aux["fallen"]) == 0.0
+    # Standing feet barely move in 60 ticks: the slip term is there, finite and tiny.
+    assert 0.0 < float(aux["slip"]) < 1e-6
     for name in p0:
         assert abs(float(g[name][0])) > 0
         eps = 1e-4

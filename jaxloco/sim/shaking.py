@@ -27,7 +27,8 @@ def simulate_shaking(
     progress: bool | str = False,
 ) -> ClosedLoopLog:
     """Shake for ``duration`` s from the ``walk`` keyframe; logs ``body_error`` (rad),
-    ``torque_norm`` (N m), ``relaxed`` and ``over_limit`` every tick."""
+    ``foot_slip`` (m, the largest horizontal displacement of a foot contact point from its
+    start), ``torque_norm`` (N m), ``relaxed`` and ``over_limit`` every tick."""
     if duration <= 0:
         raise ValueError(f"simulate_shaking: duration must be > 0 s; got {duration}")
     ctrl = make_wblc(model, config)
@@ -37,15 +38,20 @@ def simulate_shaking(
     refs0 = ctrl.hold_references(jnp.asarray(data.qpos))
     q0 = refs0["body_ori"].pos
     contact = jnp.ones(2)
+    points = jnp.asarray(ctrl.point_sites)
+    points0 = jnp.asarray(data.site_xpos[np.asarray(ctrl.point_sites), :2])
 
     @jax.jit
     def controller(t, qpos, qvel, prev):
         quat, vel, acc = shaking_reference(shaking, q0, t)
         refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
-        out = ctrl(qpos, qvel, refs, contact, previous=prev)
+        snap = ctrl.snapshot(qpos, qvel)
+        out = ctrl(qpos, qvel, refs, contact, previous=prev, snap=snap)
         dg = out.diagnostics
+        slip = snap.data.site_xpos[points, :2] - points0.astype(snap.data.site_xpos.dtype)
         logged = {
             "body_error": jnp.linalg.norm(dg.task_errors["body_ori"]),
+            "foot_slip": jnp.max(jnp.linalg.norm(slip, axis=-1)),
             "torque_norm": jnp.linalg.norm(out.torques),
             "relaxed": dg.qp_relaxed,
             "over_limit": jnp.any(dg.torque_over_limit),
@@ -66,9 +72,11 @@ def simulate_shaking(
 
 
 def shaking_metrics(log: ClosedLoopLog) -> dict:
-    """RMS and max body error, mean and max torque norm, QP relaxations, falls."""
+    """RMS and max body error, final foot slip, mean and max torque norm, QP relaxations,
+    falls."""
     out = log.outputs
     return {
+        "final_foot_slip_m": float(out["foot_slip"][-1]),
         "fell": bool(log.fell),
         "simulated_s": float(log.time[-1]) if len(log.time) else 0.0,
         "rms_body_error_rad": float(np.sqrt(np.mean(out["body_error"] ** 2))),
