@@ -12,9 +12,10 @@ with every mean over time and over the batch of pushes (``p``: the feet's contac
 averaged over the points). The CoM term is the smooth surrogate of falling the issue asks
 for (a pushed robot that falls first drifts away); the slip term catches the slow creep of
 the feet under the shaking's oscillating loads, which stiffer body gains speed up and which
-ends in a fall seconds later, beyond any horizon that is affordable to differentiate
-(measured on MuJoCo C, 1 Hz: hand-set gains let the left foot creep 2.2 cm in 5 s; the
-stiffer gains tuned without this term 4.6 cm, and a hip reached its yaw limit).
+degrades tracking (or ends in a fall) seconds later, beyond any horizon that is affordable
+to differentiate (measured on MuJoCo C, 1 Hz, 5 s: with hand-set gains a contact point
+crept 2.4 cm; with stiffer gains tuned without this term the left foot moved 4.6 cm and a
+hip reached its yaw limit).
 ``fallen`` itself has zero gradient and is there so a fall never looks like a good value.
 """
 
