@@ -98,7 +98,8 @@ class GaitParams:
     """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state. The paper
     uses 0.8; on our model the 16 pushes of 520 N x 0.1 s in 8 directions at 2 gait phases
     (the push sweep) were recovered 12 / 13 / 2 times at 0.5 / 0.2 / 0.8: the paper's
-    value under-reacts to the measured push here."""
+    value under-reacts to the measured push here. Per robot it is data
+    (``init_gait(replan_gamma=...)``), so it can be traced and tuned by gradient."""
     max_apex_speed: float = 1.0
     """Cap on the next apex velocity the step policy asks for (m/s): sets the walking speed
     below the policy's own (the shipped policy asks for 0.37, the top of its action box).
@@ -197,6 +198,8 @@ class GaitState:
     controller serves a batch with replanning on for some robots and off for others)."""
     apex_speed_cap: jax.Array
     """The policy's next-apex velocity is clipped to this (m/s)."""
+    replan_gamma: jax.Array
+    """Eq. 34's blend for this robot (``GaitParams.replan_gamma`` unless overridden)."""
     replans: jax.Array
     failed_plans: jax.Array
     last_apex: jax.Array
@@ -267,11 +270,13 @@ def init_gait(
     num_turns: int = 1,
     replan=None,
     apex_speed=None,
+    replan_gamma=None,
 ) -> GaitState:
     """The gait at rest in double support (phase START), for a CoM at ``com`` (3,) and the
     feet's contact frames at ``feet_pos`` (2, 3) (left, right); ``heading`` is the walking
-    direction (rad), ``turns`` the per-step heading changes; ``replan`` and
-    ``apex_speed`` override ``params.replan`` and ``params.max_apex_speed`` for this robot."""
+    direction (rad), ``turns`` the per-step heading changes; ``replan``, ``apex_speed`` and
+    ``replan_gamma`` override ``params.replan``, ``params.max_apex_speed`` and
+    ``params.replan_gamma`` for this robot."""
     com = jnp.asarray(com)
     dtype = com.dtype
     feet_pos = jnp.asarray(feet_pos, dtype)
@@ -309,6 +314,9 @@ def init_gait(
         replan_on=jnp.asarray(params.replan if replan is None else replan, bool),
         apex_speed_cap=jnp.asarray(
             params.max_apex_speed if apex_speed is None else apex_speed, dtype
+        ),
+        replan_gamma=jnp.asarray(
+            params.replan_gamma if replan_gamma is None else replan_gamma, dtype
         ),
         replans=jnp.asarray(0, jnp.int32),
         failed_plans=jnp.asarray(0, jnp.int32),
@@ -458,7 +466,7 @@ def _begin_step(
 
 def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
     """Eq. 34: re-plan the current step from a blend of the desired and measured CoM."""
-    g = params.replan_gamma
+    g = state.replan_gamma
     ref_pos, ref_vel, _ = com_reference(state, params, psp, t)
     new_pos = g * ref_pos[:2] + (1 - g) * com[:2]
     new_vel = g * ref_vel[:2] + (1 - g) * com_vel[:2]

@@ -58,10 +58,11 @@ class WalkingController:
         num_turns: int = 1,
         replan=None,
         apex_speed=None,
+        replan_gamma=None,
     ) -> WalkingState:
         """The controller's state for a robot standing at ``qpos`` (``replan``,
-        ``apex_speed``: override ``GaitParams.replan`` and ``.max_apex_speed`` for this
-        robot)."""
+        ``apex_speed``, ``replan_gamma``: override ``GaitParams.replan``,
+        ``.max_apex_speed`` and ``.replan_gamma`` for this robot)."""
         qpos = jnp.asarray(qpos)
         qvel = jnp.zeros(self.wblc.mx.nv, qpos.dtype) if qvel is None else jnp.asarray(qvel)
         snap = self.wblc.snapshot(qpos, qvel)
@@ -76,6 +77,7 @@ class WalkingController:
             num_turns,
             replan,
             apex_speed,
+            replan_gamma,
         )
         return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
 

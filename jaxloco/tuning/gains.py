@@ -10,7 +10,11 @@ A :class:`GainSpace` says which of them are tuned and how:
 - ``per_row=False`` (default) gives one scale per task and gain (the rows keep their
   ratios, e.g. the CoM's horizontal/vertical), ``True`` one per row.
 
-Gains not named stay as they are and get no gradient. Results are saved with
+Gains not named stay as they are and get no gradient.
+
+Gait numbers that are data per robot can be tuned too: ``"gait.replan_gamma"`` (Eq. 34's
+blend, in [0, 1]) is ``sigmoid(logit(hand-set) + s)``, so it stays inside (0, 1) and
+``s = 0`` is again the hand-set value (:meth:`GainSpace.gait_values`). Results are saved with
 :func:`jaxloco.control.gains.save_gains`, a small JSON file every experiment loads with
 ``gains_file=...`` on its command line.
 """
@@ -19,15 +23,21 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
 from jaxloco.control.gains import GAIN_KINDS
 
+GAIT = "gait"
+TUNABLE_GAIT = ("replan_gamma",)
+"""Gait numbers a :class:`GainSpace` can tune (``"gait.<name>"``)."""
+
 
 @dataclasses.dataclass(frozen=True)
 class GainSpace:
-    """Which gains are tuned: ``"task.kp"`` / ``"task.kd"`` names, e.g. ``"body_ori.kp"``."""
+    """Which gains are tuned: ``"task.kp"`` / ``"task.kd"`` names, e.g. ``"body_ori.kp"``,
+    and ``"gait.replan_gamma"``."""
 
     tuned: tuple[str, ...] = ("body_ori.kp", "body_ori.kd")
     per_row: bool = False
@@ -39,10 +49,16 @@ class GainSpace:
             raise ValueError("GainSpace.tuned: name at least one gain, e.g. 'body_ori.kp'")
         for name in self.tuned:
             task, _, kind = name.partition(".")
-            if not task or kind not in GAIN_KINDS:
+            if task == GAIT:
+                if kind not in TUNABLE_GAIT:
+                    raise ValueError(
+                        f"GainSpace.tuned: {name!r}: the tunable gait numbers are "
+                        f"{[f'{GAIT}.{k}' for k in TUNABLE_GAIT]}"
+                    )
+            elif not task or kind not in GAIN_KINDS:
                 raise ValueError(
                     f"GainSpace.tuned: {name!r} must be 'task.kp' or 'task.kd' (task: a name "
-                    "in the WBLC config)"
+                    f"in the WBLC config) or one of {[f'{GAIT}.{k}' for k in TUNABLE_GAIT]}"
                 )
         if len(set(self.tuned)) != len(self.tuned):
             raise ValueError(f"GainSpace.tuned: names repeat in {self.tuned}")
@@ -53,9 +69,19 @@ class GainSpace:
         task, _, kind = name.partition(".")
         return task, kind
 
+    @property
+    def task_gains(self) -> tuple[str, ...]:
+        """The tuned WBLC gains (names without the gait numbers)."""
+        return tuple(n for n in self.tuned if self.split(n)[0] != GAIT)
+
+    @property
+    def gait_numbers(self) -> tuple[str, ...]:
+        """The tuned gait numbers (``"replan_gamma"``, ...)."""
+        return tuple(self.split(n)[1] for n in self.tuned if self.split(n)[0] == GAIT)
+
     def check(self, base_gains: dict) -> None:
         """Raise if a tuned gain names a task the controller does not have."""
-        for name in self.tuned:
+        for name in self.task_gains:
             task, _ = self.split(name)
             if task not in base_gains:
                 raise ValueError(
@@ -69,7 +95,8 @@ class GainSpace:
         out = {}
         for name in self.tuned:
             task, kind = self.split(name)
-            size = np.shape(base_gains[task][kind])[0] if self.per_row else 1
+            per_row = self.per_row and task != GAIT
+            size = np.shape(base_gains[task][kind])[0] if per_row else 1
             out[name] = jnp.zeros(size, dtype)
         return out
 
@@ -77,16 +104,27 @@ class GainSpace:
         """The WBLC gains pytree for ``params`` (differentiable)."""
         self.check(base_gains)
         gains = {task: dict(g) for task, g in base_gains.items()}
-        for name in self.tuned:
+        for name in self.task_gains:
             task, kind = self.split(name)
             s = jnp.clip(params[name], -self.max_log_scale, self.max_log_scale)
             base = jnp.asarray(gains[task][kind])
             gains[task][kind] = base * jnp.exp(s).astype(base.dtype)
         return gains
 
+    def gait_values(self, params: dict, base_gait: dict) -> dict:
+        """``{name: value}`` of the tuned gait numbers (differentiable); ``base_gait``
+        holds their hand-set values (e.g. ``dataclasses.asdict(GaitParams())``)."""
+        out = {}
+        for kind in self.gait_numbers:
+            s = jnp.clip(params[f"{GAIT}.{kind}"], -self.max_log_scale, self.max_log_scale)
+            # Kept off 0 and 1, where the logit is infinite.
+            g0 = float(np.clip(base_gait[kind], 1e-3, 1 - 1e-3))
+            out[kind] = jax.nn.sigmoid(np.log(g0 / (1 - g0)) + s[0])
+        return out
+
 
 def tuned_values(space: GainSpace, params: dict, base_gains: dict) -> dict:
     """``{task: {"kp": [...], "kd": [...]}}`` of the tuned tasks, as plain lists."""
     gains = space.gains(params, base_gains)
-    tasks = sorted({space.split(n)[0] for n in space.tuned})
+    tasks = sorted({space.split(n)[0] for n in space.task_gains})
     return {t: {k: np.asarray(gains[t][k], float).tolist() for k in GAIN_KINDS} for t in tasks}

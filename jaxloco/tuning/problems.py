@@ -26,6 +26,8 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import mujoco
+import numpy as np
+from mujoco import mjx
 
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams, shaking_reference
@@ -167,6 +169,131 @@ def shaking_loss(
             + params.effort_weight * costs["effort"]
             + params.com_weight * costs["com"]
             + params.slip_weight * costs["slip"]
+            + params.fall_weight * costs["fallen"]
+        )
+        return loss, costs
+
+    return loss_fn, space.init(base), base
+
+
+@dataclasses.dataclass(frozen=True)
+class PushLossParams:
+    """The walking push-recovery tuning problem: Valkyrie walks, is pushed during single
+    support, and is scored on how far it is thrown off over the next ``horizon`` seconds.
+
+    Per tick, averaged over time and the batch of pushes::
+
+        w_com * |e_com|^2 + w_tilt * (1 - R_zz) + w_effort * |tau|^2 / tau_scale^2
+        + w_fall * fraction of the horizon fallen
+
+    ``e_com`` is Eq. 33's CoM error (what replanning reacts to) and ``1 - R_zz`` the
+    pelvis's tilt from upright: smooth surrogates of falling, which both grow before a fall.
+    """
+
+    horizon: float = 0.8
+    """Simulated seconds from the push's start."""
+    push_step: int = 4
+    """The step (from the first lift-off) during whose single support the pushes start."""
+    phase: float = 0.3
+    """Fraction of that single support at which they start."""
+    apex_speed: float = 1.0
+    """Walking speed cap (``GaitParams.max_apex_speed``; >= 0.37: the policy's own)."""
+    segment: int = 1
+    """Ticks per checkpointed segment (reverse mode only, see :mod:`.rollout`)."""
+    com_weight: float = 100.0
+    tilt_weight: float = 10.0
+    effort_weight: float = 0.01
+    torque_scale: float = 300.0
+    fall_weight: float = 10.0
+    fall_height: float = 0.7
+
+    def __post_init__(self):
+        for name in ("horizon", "torque_scale", "apex_speed"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"PushLossParams.{name} must be > 0; got {getattr(self, name)}")
+        for name in ("com_weight", "tilt_weight", "effort_weight", "fall_weight"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"PushLossParams.{name} must be >= 0; got {getattr(self, name)}")
+        if not 0 <= self.phase <= 1:
+            raise ValueError(f"PushLossParams.phase must be in [0, 1]; got {self.phase}")
+        if self.push_step < 1 or self.segment < 1:
+            raise ValueError("PushLossParams.push_step and segment must be >= 1")
+
+
+def push_loss(
+    sim_model: mujoco.MjModel,
+    ctrl,
+    space: GainSpace,
+    params: PushLossParams = PushLossParams(),
+    push_body: str = "pelvis",
+):
+    """``(loss_fn, init_params, base_gains)`` of the walking push-recovery problem.
+
+    ``ctrl``: a :class:`~jaxloco.locomotion.walking.WalkingController`; ``sim_model``: the
+    simulated physics (e.g. :func:`~jaxloco.sim.mjx_loop.physics_model`; reverse-mode
+    gradients need :func:`~jaxloco.tuning.rollout.tuning_physics`, forward mode does not).
+    The undisturbed walk up to the push is simulated once, on MuJoCo C, as the sweeps do
+    (:func:`~jaxloco.sweep.starts.snapshot_walk`); every loss evaluation starts there.
+
+    ``loss_fn(tuned, pushes) -> (loss, costs)``: ``pushes`` is ``(B, 3)`` rows
+    ``(force N, direction rad in the walking frame (0: forward), duration s)``, one MJX
+    rollout each. ``space`` may name WBLC gains and ``"gait.replan_gamma"``.
+    """
+    from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states
+    from jaxloco.sweep.starts import snapshot_walk
+
+    base = ctrl.wblc.default_gains()
+    space.check(base)
+    base_gait = dataclasses.asdict(ctrl.gait_params)
+    snaps = snapshot_walk(
+        sim_model, ctrl, jax.jit(ctrl.step), params.apex_speed, 0.0, True, params.push_step,
+        [params.phase], params.fall_height,
+    )  # fmt: skip
+    starts = ChunkStarts(snaps.times, snaps.physics, snaps.controller, np.zeros((1, 4)))
+    state0 = jax.tree.map(lambda x: x[0], mjx_loop_states(sim_model, starts))
+    mx = mjx.put_model(sim_model)
+    t0 = float(snaps.times[0])
+    heading = float(np.asarray(snaps.controller.gait.heading)[0])
+    steps = int(round(params.horizon / sim_model.opt.timestep))
+    steps = max(params.segment, -(-steps // params.segment) * params.segment)
+    body = body_index(sim_model, push_body)
+
+    def loss_fn(tuned, pushes):
+        gains = space.gains(tuned, base)
+        gait_values = space.gait_values(tuned, base_gait)
+        dtype = state0.data.qpos.dtype
+
+        def controller(t, qpos, qvel, cstate):
+            torques, cstate, log = ctrl.step(t, qpos, qvel, cstate, gains=gains)
+            quat = qpos[3:7]
+            costs = {
+                "com": log["com_error"] ** 2,
+                "tilt": 2.0 * (quat[1] ** 2 + quat[2] ** 2) / jnp.sum(quat**2),
+                "effort": log["torque_norm"] ** 2 / params.torque_scale**2,
+            }
+            return torques, cstate, costs
+
+        def one(push):
+            gait = state0.controller.gait
+            gait = gait.replace(**{k: jnp.asarray(v, dtype) for k, v in gait_values.items()})
+            state = state0.replace(controller=state0.controller.replace(gait=gait))
+            row = jnp.stack(
+                [push[0], heading + push[1], jnp.asarray(t0, push.dtype), push[2]]
+            ).astype(dtype)
+            final, costs = mean_costs(
+                mx, controller, state, steps, params.segment, row[None], body,
+                params.fall_height,
+            )  # fmt: skip
+            duration = steps * sim_model.opt.timestep
+            fallen = jnp.where(final.fell, 1.0 - (final.fall_time - t0) / duration, 0.0)
+            costs["fallen"] = fallen.astype(dtype)
+            return costs
+
+        costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), jax.vmap(one)(pushes))
+        loss = (
+            params.com_weight * costs["com"]
+            + params.tilt_weight * costs["tilt"]
+            + params.effort_weight * costs["effort"]
             + params.fall_weight * costs["fallen"]
         )
         return loss, costs
