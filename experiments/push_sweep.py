@@ -5,6 +5,7 @@
     jaxloco push-sweep backend=mjx chunk_size=32             # MJX instead of MuJoCo C
     jaxloco push-sweep sweep.mode=random sweep.num_random=256 'sweep.seeds=[0,1]'
     jaxloco push-sweep hydra.run.dir=outputs/my_sweep        # run again: resumes
+    jaxloco push-sweep gains_file=outputs/tune/tuned_gains.json   # tuned gains and gamma
     jaxloco sweep-report outputs/my_sweep                    # rebuild the report
 
 Each push starts from a snapshot of the undisturbed walk at its gait phase and runs for
@@ -24,6 +25,7 @@ from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
 from jaxloco.config import config_schema, to_params
+from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import walking_config
 from jaxloco.locomotion import GaitParams
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog
@@ -53,6 +55,9 @@ class PushSweepConfig:
     """The walking WBLC's rank threshold (``WBLCConfig.pinv_rtol``)."""
     whiten_tasks: bool = True
     """Threshold in whitened task rows (``WBLCConfig.whiten_tasks``)."""
+    gains_file: str = ""
+    """A tuned gains file (``tune-gains``, ``tune-push``): its WBLC gains and its gait
+    section (e.g. ``replan_gamma``) replace the defaults. Use a new run directory for it."""
     timeout_s: float = 3600.0
     """Watchdog: the run fails loudly (stack dump, exit 1) past this."""
     dpi: int = 120
@@ -73,10 +78,13 @@ def main(cfg) -> None:
             out_dir,
             backend=cfg.backend,
             chunk_size=cfg.chunk_size,
-            gait=to_params(GaitParams, cfg.gait),
+            gait=apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file),
             physics=to_params(PhysicsParams, cfg.physics),
             nthread=cfg.nthread or None,
-            wblc=walking_config(pinv_rtol=cfg.pinv_rtol, whiten_tasks=cfg.whiten_tasks),
+            wblc=apply_gains_file(
+                walking_config(pinv_rtol=cfg.pinv_rtol, whiten_tasks=cfg.whiten_tasks),
+                cfg.gains_file,
+            ),
             config=OmegaConf.to_container(cfg, resolve=True),
             max_chunks=cfg.max_chunks or None,
         )

@@ -6,7 +6,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxloco.control.gains import apply_gains_file, load_gains, save_gains, with_gains
+from jaxloco.control.gains import (
+    apply_gains_file,
+    apply_gait_file,
+    load_gains,
+    load_gait,
+    save_gains,
+    with_gains,
+)
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.tasks import default_gains
 from jaxloco.tuning.gains import GainSpace, tuned_values
@@ -35,6 +42,47 @@ def test_gain_space_rejects_bad_names():
     base = default_gains(body_shaking_config("H2").tasks)
     with pytest.raises(ValueError, match="no task 'nope'"):
         GainSpace(("nope.kp",)).init(base)
+
+
+def test_gain_space_tunes_replan_gamma_inside_zero_one():
+    from jaxloco.locomotion.gait import GaitParams
+
+    base = default_gains(body_shaking_config("H2").tasks)
+    base_gait = {"replan_gamma": GaitParams().replan_gamma}
+    space = GainSpace(("gait.replan_gamma", "com.kp"), per_row=True)
+    p = space.init(base, jnp.float64)
+    assert p["gait.replan_gamma"].shape == (1,)  # one number, whatever per_row says
+    assert space.task_gains == ("com.kp",) and space.gait_numbers == ("replan_gamma",)
+    assert float(space.gait_values(p, base_gait)["replan_gamma"]) == pytest.approx(0.5)
+    np.testing.assert_allclose(space.gains(p, base)["com"]["kp"], base["com"]["kp"])
+    for s, expected in (
+        (np.log(3.0), 0.75),
+        (-50.0, 1 / (1 + np.e**3)),
+        (50.0, 1 / (1 + np.e**-3)),
+    ):
+        q = dict(p, **{"gait.replan_gamma": jnp.array([s])})
+        assert float(space.gait_values(q, base_gait)["replan_gamma"]) == pytest.approx(expected)
+    grad = jax.grad(
+        lambda x: space.gait_values({"gait.replan_gamma": x}, base_gait)["replan_gamma"]
+    )
+    assert float(grad(jnp.zeros(1))[0]) == pytest.approx(0.25)  # sigmoid' at 0
+    with pytest.raises(ValueError, match="tunable gait numbers"):
+        GainSpace(("gait.replan_threshold",))
+
+
+def test_gains_file_carries_tuned_gait_numbers(tmp_path):
+    from jaxloco.locomotion.gait import GaitParams
+
+    path = save_gains(tmp_path / "g.json", {}, gait={"replan_gamma": np.float32(0.3)})
+    assert load_gait(path) == {"replan_gamma": pytest.approx(0.3)}
+    assert apply_gait_file(GaitParams(), path).replan_gamma == pytest.approx(0.3)
+    assert apply_gait_file(GaitParams(), "") == GaitParams()
+    plain = save_gains(tmp_path / "plain.json", {})
+    assert load_gait(plain) == {} and apply_gait_file(GaitParams(), plain) == GaitParams()
+    with pytest.raises(ValueError, match="replan_gamma"):  # GaitParams' own range check
+        apply_gait_file(GaitParams(), save_gains(tmp_path / "b.json", {}, gait={"replan_gamma": 2}))
+    with pytest.raises(ValueError, match="not GaitParams fields"):
+        apply_gait_file(GaitParams(), save_gains(tmp_path / "c.json", {}, gait={"nope": 1.0}))
 
 
 def test_gains_file_round_trip_into_a_controller_config(tmp_path):

@@ -1,0 +1,238 @@
+"""Tune walking gains and Eq. 34's replan gamma by gradient for push recovery.
+
+    jaxloco tune-push                                       # gamma and CoM gains, 8 pushes
+    jaxloco tune-push 'tuned=[gait.replan_gamma]' tune.iterations=10
+    jaxloco tune-push 'pushes=[[650,0],[650,90],[650,180],[650,270]]' problem.horizon=0.6
+    jaxloco tune-push 'heldout.magnitudes=[600,700]' 'heldout.phases=[0.5]'
+
+Tuning: Valkyrie walks in MJX (the sweep's physics settings, forward-mode gradients, so
+the default solver works), is pushed on the pelvis during single support of step
+``problem.push_step`` (each training push ``[force N, direction deg]``, 0: from behind,
+90: to the left) and is scored by the CoM error, pelvis tilt, effort and falls of the next
+``problem.horizon`` seconds (:class:`jaxloco.tuning.problems.PushLossParams`). Optax
+minimises that over the named gains (``task.kp``/``task.kd`` of the walking WBLC and
+``gait.replan_gamma``).
+
+Held out: the hand-set and the tuned controller each run the push sweep ``heldout`` on
+MuJoCo's C engine (by default directions between the training ones, two magnitudes, another
+gait phase, and the sweep's 2.5 s horizon) and the success rates are compared. Writes
+``tuned_gains.json`` (its gait section sets ``replan_gamma``; load it with
+``gains_file=...`` in push-sweep), ``history.json``, ``loss_curve.png``, ``heldout.png``,
+``summary.json`` and the two held-out sweeps (``heldout_hand_set/``, ``heldout_tuned/``).
+"""
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import hydra
+import jax.numpy as jnp
+import numpy as np
+from hydra.core.config_store import ConfigStore
+from hydra.core.hydra_config import HydraConfig
+from matplotlib.figure import Figure
+from omegaconf import OmegaConf
+
+from jaxloco.config import config_schema, to_params
+from jaxloco.control.gains import save_gains, with_gains
+from jaxloco.control.presets import walking_config
+from jaxloco.dynamics.model import load_valkyrie
+from jaxloco.locomotion import GaitParams
+from jaxloco.locomotion.walking import make_walking_controller
+from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
+from jaxloco.sweep import SweepSpec, run_sweep, write_report
+from jaxloco.tuning.gains import GainSpace, tuned_values
+from jaxloco.tuning.optimize import TuneConfig, tune
+from jaxloco.tuning.problems import PushLossParams, push_loss
+
+log = logging.getLogger(__name__)
+
+ProblemSchema = config_schema(PushLossParams)
+TuneSchema = config_schema(TuneConfig)
+GaitSchema = config_schema(GaitParams)
+PhysicsSchema = config_schema(PhysicsParams)
+SweepSchema = config_schema(SweepSpec)
+
+HELDOUT = SweepSpec(
+    directions_deg=(22.5, 67.5, 112.5, 157.5, 202.5, 247.5, 292.5, 337.5),
+    magnitudes=(600.0, 700.0),
+    phases=(0.5,),
+    replan=(True,),
+)
+"""Pushes the tuning never sees: directions between the training ones, another phase."""
+
+
+@dataclass
+class TunePushConfig:
+    tuned: list[str] = field(default_factory=lambda: ["gait.replan_gamma", "com.kp", "com.kd"])
+    """``task.kp`` / ``task.kd`` of the walking WBLC, and ``gait.replan_gamma``."""
+    max_log_scale: float = 2.0
+    problem: ProblemSchema = field(default_factory=ProblemSchema)
+    tune: TuneSchema = field(default_factory=lambda: TuneSchema(iterations=10))
+    pushes: list[list[float]] = field(
+        default_factory=lambda: [[650.0, float(d)] for d in range(0, 360, 45)]
+    )
+    """Training pushes ``[force N, direction deg]`` (0: forward), one rollout each."""
+    push_duration: float = 0.1
+    heldout: SweepSchema = field(default_factory=lambda: SweepSchema(**_fields(HELDOUT)))
+    gait: GaitSchema = field(default_factory=GaitSchema)
+    physics: PhysicsSchema = field(default_factory=PhysicsSchema)
+    pinv_rtol: float = 1e-2
+    whiten_tasks: bool = True
+    timeout_s: float = 5400.0
+    dpi: int = 120
+
+
+def _fields(obj) -> dict:
+    return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
+
+
+ConfigStore.instance().store(name="tune_push", node=TunePushConfig)
+
+
+def training_pushes(cfg) -> jnp.ndarray:
+    if not cfg.pushes:
+        raise ValueError("pushes: give at least one [force N, direction deg]")
+    if not cfg.push_duration > 0:
+        raise ValueError(f"push_duration must be > 0 s; got {cfg.push_duration}")
+    rows = []
+    for k, p in enumerate(cfg.pushes):
+        if len(p) != 2 or p[0] < 0:
+            raise ValueError(f"pushes[{k}]: want [force N >= 0, direction deg]; got {list(p)}")
+        rows.append([p[0], np.deg2rad(p[1]), cfg.push_duration])
+    return jnp.asarray(rows, dtype=jnp.float32)
+
+
+def plot_curve(history, path: Path, dpi: int):
+    fig = Figure(figsize=(10, 4), constrained_layout=True)
+    ax_it, ax_terms = fig.subplots(1, 2)
+    it = [h["iteration"] for h in history]
+    ax_it.plot(it, [h["loss"] for h in history], "o-", ms=3)
+    ax_it.set(xlabel="iteration", ylabel="loss", title="push-recovery tuning loss")
+    for term in ("com", "tilt", "effort", "fallen"):
+        if term in history[0]:
+            ax_terms.semilogy(it, [max(h[term], 1e-12) for h in history], label=term)
+    ax_terms.set(xlabel="iteration", title="loss terms (unweighted)")
+    for ax in (ax_it, ax_terms):
+        ax.grid(alpha=0.3)
+    ax_terms.legend(fontsize=8)
+    fig.savefig(path, dpi=dpi)
+
+
+def plot_heldout(results: dict, path: Path, dpi: int):
+    """Recovered fraction per held-out direction and magnitude, hand-set vs tuned."""
+    mags = sorted({float(m) for r in results.values() for m in r.table["magnitude"]})
+    fig = Figure(figsize=(5 * len(mags), 4), constrained_layout=True)
+    axes = np.atleast_1d(fig.subplots(1, len(mags), squeeze=False)[0])
+    for ax, mag in zip(axes, mags, strict=True):
+        for k, (name, r) in enumerate(results.items()):
+            dirs = np.asarray(r.table["direction_deg"], float)
+            sel = np.isclose(r.table["magnitude"], mag) & r.complete
+            ok = np.asarray(r.outcomes["recovered"], bool)
+            angles = sorted(set(dirs[sel]))
+            rate = [ok[sel & (dirs == a)].mean() for a in angles]
+            ax.bar(np.arange(len(angles)) + 0.4 * (k - 0.5), rate, 0.4, label=name)
+            ax.set_xticks(range(len(angles)), [f"{a:g}" for a in angles])
+        ax.set(xlabel="push direction (deg)", ylabel="recovered", ylim=(0, 1.05))
+        ax.set_title(f"held out: {mag:g} N")
+        ax.legend(fontsize=8)
+    fig.suptitle("Held-out push sweep on MuJoCo C: hand-set vs tuned")
+    fig.savefig(path, dpi=dpi)
+
+
+def run(cfg, out_dir: Path) -> dict:
+    space = GainSpace(tuple(cfg.tuned), False, cfg.max_log_scale)
+    problem = to_params(PushLossParams, cfg.problem)
+    tune_cfg = to_params(TuneConfig, cfg.tune)
+    gait = to_params(GaitParams, cfg.gait)
+    physics = to_params(PhysicsParams, cfg.physics)
+    heldout = to_params(SweepSpec, cfg.heldout)
+    pushes = training_pushes(cfg)
+    wblc = walking_config(pinv_rtol=cfg.pinv_rtol, whiten_tasks=cfg.whiten_tasks)
+    model = load_valkyrie()
+    sim_model = physics_model(model, physics)
+    ctrl = make_walking_controller(model, config=wblc, gait=gait)
+    loss, p0, base = push_loss(sim_model, ctrl, space, problem)
+
+    records = []
+
+    def keep(record):  # the curve so far is on disk while the loop runs
+        records.append(record)
+        write_json(out_dir / "history.json.partial", records)
+
+    start = time.perf_counter()
+    result = tune(lambda p: loss(p, pushes), p0, tune_cfg, progress="tuning", callback=keep)
+    tuning_s = time.perf_counter() - start
+    (out_dir / "history.json.partial").unlink(missing_ok=True)
+    values = tuned_values(space, result.params, base)
+    gait_values = {
+        k: float(v) for k, v in space.gait_values(result.params, dataclasses.asdict(gait)).items()
+    }
+    hand = tuned_values(space, space.init(base), base)
+    hand_gait = {k: getattr(gait, k) for k in gait_values}
+    save_gains(
+        out_dir / "tuned_gains.json",
+        values,
+        {
+            "problem": "push recovery while walking",
+            "hand_set": hand,
+            "hand_set_gait": hand_gait,
+            "best_loss": result.best_loss,
+            "initial_loss": result.history[0]["loss"],
+        },
+        gait=gait_values,
+    )
+    write_json(out_dir / "history.json", result.history)
+    plot_curve(result.history, out_dir / "loss_curve.png", cfg.dpi)
+
+    variants = {
+        "hand-set": (gait, wblc),
+        "tuned": (dataclasses.replace(gait, **gait_values), with_gains(wblc, values)),
+    }
+    sweeps, rates = {}, {}
+    for name, (g, w) in variants.items():
+        run_dir = out_dir / f"heldout_{name.replace('-', '_')}"
+        res = run_sweep(heldout, run_dir, gait=g, physics=physics, wblc=w, progress=True)
+        write_report(run_dir, dpi=cfg.dpi)
+        sweeps[name] = res
+        ok = np.asarray(res.outcomes["recovered"], bool)[res.complete]
+        rates[name] = {"recovered": int(ok.sum()), "pushes": int(ok.size)}
+    plot_heldout(sweeps, out_dir / "heldout.png", cfg.dpi)
+    summary = {
+        "config": OmegaConf.to_container(OmegaConf.structured(cfg)),
+        "tuning_wall_s": tuning_s,
+        "iterations": len(result.history),
+        "stopped": result.stopped,
+        "initial_loss": result.history[0]["loss"],
+        "best_loss": result.best_loss,
+        "hand_set": {"gains": hand, "gait": hand_gait},
+        "tuned": {"gains": values, "gait": gait_values},
+        "heldout": rates,
+        "heldout_improved": rates["tuned"]["recovered"] > rates["hand-set"]["recovered"],
+    }
+    write_json(out_dir / "summary.json", summary)
+    return summary
+
+
+@hydra.main(version_base="1.3", config_path=None, config_name="tune_push")
+def main(cfg) -> None:
+    quiet_jax_logs()
+    enable_compilation_cache()
+    out_dir = Path(HydraConfig.get().runtime.output_dir)
+    with watchdog(cfg.timeout_s, "tune-push"):
+        summary = run(cfg, out_dir)
+    print(
+        f"loss {summary['initial_loss']:.5g} -> {summary['best_loss']:.5g} in "
+        f"{summary['iterations']} iterations ({summary['tuning_wall_s']:.0f} s)"
+    )
+    print(f"hand-set {summary['hand_set']}\ntuned    {summary['tuned']}")
+    for name, r in summary["heldout"].items():
+        print(f"held out, {name}: recovered {r['recovered']}/{r['pushes']}")
+    print(f"tuned gains: {out_dir / 'tuned_gains.json'} (push-sweep gains_file=...)")
+
+
+if __name__ == "__main__":
+    main()
