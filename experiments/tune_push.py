@@ -2,14 +2,15 @@
 
     jaxloco tune-push                                       # gamma and CoM gains, 8 pushes
     jaxloco tune-push 'tuned=[gait.replan_gamma]' tune.iterations=10
-    jaxloco tune-push 'pushes=[[650,0],[650,90],[650,180],[650,270]]' problem.horizon=0.6
+    jaxloco tune-push 'pushes=[[650,0],[650,90],[650,180],[650,270]]' problem.horizon=0.2
     jaxloco tune-push 'heldout.magnitudes=[600,700]' 'heldout.phases=[0.5]'
 
 Tuning: Valkyrie walks in MJX (the sweep's physics settings, forward-mode gradients, so
 the default solver works), is pushed on the pelvis during single support of step
 ``problem.push_step`` (each training push ``[force N, direction deg]``, 0: from behind,
-90: to the left) and is scored by the CoM error, pelvis tilt, effort and falls of the next
-``problem.horizon`` seconds (:class:`jaxloco.tuning.problems.PushLossParams`). Optax
+90: to the left) and is scored by how far the capture point is thrown off the planned
+step, the pelvis tilt, effort and falls of the next ``problem.horizon`` seconds
+(:class:`jaxloco.tuning.problems.PushLossParams`). Optax
 minimises that over the named gains (``task.kp``/``task.kd`` of the walking WBLC and
 ``gait.replan_gamma``).
 
@@ -112,7 +113,7 @@ def plot_curve(history, path: Path, dpi: int):
     it = [h["iteration"] for h in history]
     ax_it.plot(it, [h["loss"] for h in history], "o-", ms=3)
     ax_it.set(xlabel="iteration", ylabel="loss", title="push-recovery tuning loss")
-    for term in ("com", "tilt", "effort", "fallen"):
+    for term in ("dcm", "tilt", "effort", "fallen"):
         if term in history[0]:
             ax_terms.semilogy(it, [max(h[term], 1e-12) for h in history], label=term)
     ax_terms.set(xlabel="iteration", title="loss terms (unweighted)")
