@@ -139,6 +139,28 @@ def test_tune_stops_with_a_clear_error_on_nan_and_on_exploding_gradients():
         tune(steep, {"x": jnp.ones(1)}, TuneConfig(max_grad_norm=1e3), progress=False)
 
 
+@pytest.mark.parametrize("mode", ["forward", "reverse"])
+def test_robust_gradient_leaves_out_samples_whose_gradient_explodes(mode):
+    from jaxloco.tuning.optimize import robust_value_and_grad
+
+    def sample_loss(p, s):  # the third sample's slope is 1e7: a contact-event artefact
+        scale = jnp.where(s == 2.0, 1e7, 1.0)
+        return scale * s * jnp.sum(p["x"] ** 2) + jnp.sum(p["x"]), {"s": s}
+
+    samples = jnp.array([0.5, 1.0, 2.0, 3.0])
+    p = {"x": jnp.array([0.2, -0.1])}
+    (loss, aux), g = jax.jit(robust_value_and_grad(sample_loss, samples, mode, 100.0))(p)
+    kept = [0.5, 1.0, 3.0]
+    expected = np.mean([2 * s * np.asarray(p["x"]) + 1 for s in kept], axis=0)
+    np.testing.assert_allclose(g["x"], expected, rtol=1e-6)
+    assert float(aux["untrusted"]) == pytest.approx(0.25)
+    assert float(aux["s"]) == pytest.approx(1.625)
+    losses = [float(sample_loss(p, s)[0]) for s in samples]
+    assert float(loss) == pytest.approx(np.mean(losses))  # the loss keeps every sample
+    with pytest.raises(ValueError, match="max_sample_grad_norm"):
+        robust_value_and_grad(sample_loss, samples, mode, 0.0)
+
+
 def test_tune_config_validates():
     with pytest.raises(ValueError, match="TuneConfig.method"):
         TuneConfig(method="sgd")
