@@ -26,6 +26,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import hydra
 import jax.numpy as jnp
@@ -65,7 +66,8 @@ class TuneGainsConfig:
     problem: ProblemSchema = field(default_factory=ProblemSchema)
     shaking: ShakingSchema = field(default_factory=ShakingSchema)
     tune: TuneSchema = field(default_factory=TuneSchema)
-    pushes: list[list[float]] = field(default_factory=lambda: [[0.0, 0.0]])
+    # list[Any]: OmegaConf rejects ints (`[[520,0]]`) in a typed nested list.
+    pushes: list[Any] = field(default_factory=lambda: [[0.0, 0.0]])
     """Training pushes on the pelvis, ``[force N, direction deg]``, one rollout each
     (averaged); ``[0, 0]``: no push."""
     push_start: float = 0.3

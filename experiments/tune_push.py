@@ -27,6 +27,7 @@ import logging
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import hydra
 import jax
@@ -74,7 +75,8 @@ class TunePushConfig:
     max_log_scale: float = 2.0
     problem: ProblemSchema = field(default_factory=ProblemSchema)
     tune: TuneSchema = field(default_factory=lambda: TuneSchema(iterations=8, learning_rate=0.05))
-    pushes: list[list[float]] = field(
+    # list[Any]: OmegaConf rejects ints (`[[520,0]]`) in a typed nested list.
+    pushes: list[Any] = field(
         default_factory=lambda: [[650.0, float(d)] for d in range(0, 360, 45)]
     )
     """Training pushes ``[force N, direction deg]`` (0: forward), one rollout each."""
