@@ -23,7 +23,6 @@ error, torque and foot creep) and ``summary.json`` to the run directory.
 
 import dataclasses
 import logging
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,9 +43,10 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
 from jaxloco.sim.shaking import shaking_metrics, simulate_shaking
 from jaxloco.tuning.gains import GainSpace, tuned_values
-from jaxloco.tuning.optimize import TuneConfig, tune
+from jaxloco.tuning.optimize import TuneConfig, tune_in_dir
 from jaxloco.tuning.problems import ShakingLossParams, shaking_loss
 from jaxloco.tuning.rollout import tuning_physics
+from jaxloco.viz.tuning import plot_loss_curve
 
 log = logging.getLogger(__name__)
 
@@ -80,6 +80,8 @@ class TuneGainsConfig:
 
 ConfigStore.instance().store(name="tune_gains", node=TuneGainsConfig)
 
+LOSS_TERMS = ("track", "effort", "com", "slip", "fallen")
+
 
 def training_pushes(cfg) -> jnp.ndarray:
     rows = []
@@ -97,24 +99,6 @@ def heldout(model, config, shaking: ShakingParams, cfg) -> dict:
         res = simulate_shaking(model, config, params, cfg.heldout_duration)
         out[f"{f:g}"] = {"metrics": shaking_metrics(res), "time": res.time, "log": res.outputs}
     return out
-
-
-def plot_curve(history, path: Path, dpi: int):
-    fig = Figure(figsize=(10, 4), constrained_layout=True)
-    ax_it, ax_terms = fig.subplots(1, 2)
-    it = [h["iteration"] for h in history]
-    ax_it.plot(it, [h["loss"] for h in history], "o-", ms=3)
-    ax_it.set(xlabel="iteration", ylabel="loss", title="tuning loss")
-    top = ax_it.secondary_xaxis("top", functions=(lambda x: x, lambda x: x))
-    top.set_xlabel(f"wall time: {history[-1]['wall_s']:.0f} s for {len(history)} iterations")
-    for term in ("track", "effort", "com", "slip", "fallen"):
-        if term in history[0]:
-            ax_terms.semilogy(it, [max(h[term], 1e-12) for h in history], label=term)
-    ax_terms.set(xlabel="iteration", title="loss terms (unweighted)")
-    for ax in (ax_it, ax_terms):
-        ax.grid(alpha=0.3)
-    ax_terms.legend(fontsize=8)
-    fig.savefig(path, dpi=dpi)
 
 
 def plot_before_after(before, after, path: Path, dpi: int):
@@ -169,16 +153,7 @@ def run(cfg, out_dir: Path) -> dict:
     model = load_valkyrie()
     loss, p0, base = shaking_loss(tuning_physics(model), space, problem, shaking)
 
-    records = []
-
-    def keep(record):  # the curve so far is on disk while the loop runs
-        records.append(record)
-        write_json(out_dir / "history.json.partial", records)
-
-    start = time.perf_counter()
-    result = tune(lambda p: loss(p, pushes), p0, tune_cfg, progress="tuning", callback=keep)
-    tuning_s = time.perf_counter() - start
-    (out_dir / "history.json.partial").unlink(missing_ok=True)
+    result = tune_in_dir(lambda p: loss(p, pushes), p0, tune_cfg, out_dir)
     values = tuned_values(space, result.params, base)
     config = body_shaking_config(problem.hierarchy, pinv_rtol=problem.pinv_rtol)
     hand = tuned_values(space, space.init(base), base)
@@ -192,19 +167,15 @@ def run(cfg, out_dir: Path) -> dict:
             "initial_loss": result.history[0]["loss"],
         },
     )
-    write_json(out_dir / "history.json", result.history)
-    plot_curve(result.history, out_dir / "loss_curve.png", cfg.dpi)
+    fig = plot_loss_curve(result.history, LOSS_TERMS, "tuning loss")
+    fig.savefig(out_dir / "loss_curve.png", dpi=cfg.dpi)
 
     before = heldout(model, config, shaking, cfg)
     after = heldout(model, with_gains(config, values), shaking, cfg)
     plot_before_after(before, after, out_dir / "before_after.png", cfg.dpi)
     summary = {
         "config": OmegaConf.to_container(OmegaConf.structured(cfg)),
-        "tuning_wall_s": tuning_s,
-        "iterations": len(result.history),
-        "stopped": result.stopped,
-        "initial_loss": result.history[0]["loss"],
-        "best_loss": result.best_loss,
+        **result.summary(),
         "hand_set_gains": hand,
         "tuned_gains": values,
         "heldout": {
@@ -217,7 +188,7 @@ def run(cfg, out_dir: Path) -> dict:
         for v in summary["heldout"].values()
     )
     write_json(out_dir / "summary.json", summary)
-    return summary
+    return {**summary, "tuning": result.describe()}
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="tune_gains")
@@ -227,10 +198,7 @@ def main(cfg) -> None:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with watchdog(cfg.timeout_s, "tune-gains"):
         summary = run(cfg, out_dir)
-    print(
-        f"loss {summary['initial_loss']:.5g} -> {summary['best_loss']:.5g} in "
-        f"{summary['iterations']} iterations ({summary['tuning_wall_s']:.0f} s)"
-    )
+    print(summary["tuning"])
     for f, v in summary["heldout"].items():
         h, t = v["hand_set"], v["tuned"]
         print(

@@ -24,7 +24,6 @@ gait phase, and the sweep's 2.5 s horizon) and the success rates are compared. W
 
 import dataclasses
 import logging
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,8 +47,9 @@ from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, 
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
 from jaxloco.sweep import SweepSpec, run_sweep, write_report
 from jaxloco.tuning.gains import GainSpace, tuned_values
-from jaxloco.tuning.optimize import TuneConfig, robust_value_and_grad, tune
+from jaxloco.tuning.optimize import TuneConfig, robust_value_and_grad, tune_in_dir
 from jaxloco.tuning.problems import PushLossParams, push_loss
+from jaxloco.viz.tuning import plot_loss_curve
 
 log = logging.getLogger(__name__)
 
@@ -104,6 +104,8 @@ def _fields(obj) -> dict:
 
 ConfigStore.instance().store(name="tune_push", node=TunePushConfig)
 
+LOSS_TERMS = ("dcm", "tilt", "effort", "fallen", "untrusted")
+
 
 def training_pushes(cfg) -> jnp.ndarray:
     if not cfg.pushes:
@@ -116,22 +118,6 @@ def training_pushes(cfg) -> jnp.ndarray:
             raise ValueError(f"pushes[{k}]: want [force N >= 0, direction deg]; got {list(p)}")
         rows.append([p[0], np.deg2rad(p[1]), cfg.push_duration])
     return jnp.asarray(rows)
-
-
-def plot_curve(history, path: Path, dpi: int):
-    fig = Figure(figsize=(10, 4), constrained_layout=True)
-    ax_it, ax_terms = fig.subplots(1, 2)
-    it = [h["iteration"] for h in history]
-    ax_it.plot(it, [h["loss"] for h in history], "o-", ms=3)
-    ax_it.set(xlabel="iteration", ylabel="loss", title="push-recovery tuning loss")
-    for term in ("dcm", "tilt", "effort", "fallen", "untrusted"):
-        if term in history[0]:
-            ax_terms.semilogy(it, [max(h[term], 1e-12) for h in history], label=term)
-    ax_terms.set(xlabel="iteration", title="loss terms (unweighted)")
-    for ax in (ax_it, ax_terms):
-        ax.grid(alpha=0.3)
-    ax_terms.legend(fontsize=8)
-    fig.savefig(path, dpi=dpi)
 
 
 def plot_heldout(results: dict, path: Path, dpi: int):
@@ -170,25 +156,13 @@ def run(cfg, out_dir: Path) -> dict:
     ctrl = make_walking_controller(model, config=wblc, gait=gait)
     loss, p0, base = push_loss(sim_model, ctrl, space, problem)
 
-    records = []
-
-    def keep(record):  # the curve so far is on disk while the loop runs
-        records.append(record)
-        write_json(out_dir / "history.json.partial", records)
-
     def push_loss_fn(p, push):
         return loss(p, push[None])
 
     grad_fn = jax.jit(
         robust_value_and_grad(push_loss_fn, pushes, tune_cfg.gradient, cfg.max_push_grad_norm)
     )
-    start = time.perf_counter()
-    result = tune(
-        lambda p: loss(p, pushes), p0, tune_cfg, progress="tuning", callback=keep,
-        loss_and_grad=grad_fn,
-    )  # fmt: skip
-    tuning_s = time.perf_counter() - start
-    (out_dir / "history.json.partial").unlink(missing_ok=True)
+    result = tune_in_dir(lambda p: loss(p, pushes), p0, tune_cfg, out_dir, loss_and_grad=grad_fn)
     values = tuned_values(space, result.params, base)
     gait_values = {
         k: float(v) for k, v in space.gait_values(result.params, dataclasses.asdict(gait)).items()
@@ -207,8 +181,8 @@ def run(cfg, out_dir: Path) -> dict:
         },
         gait=gait_values,
     )
-    write_json(out_dir / "history.json", result.history)
-    plot_curve(result.history, out_dir / "loss_curve.png", cfg.dpi)
+    fig = plot_loss_curve(result.history, LOSS_TERMS, "push-recovery tuning loss")
+    fig.savefig(out_dir / "loss_curve.png", dpi=cfg.dpi)
 
     jax.config.update("jax_enable_x64", False)
     variants = {
@@ -226,18 +200,14 @@ def run(cfg, out_dir: Path) -> dict:
     plot_heldout(sweeps, out_dir / "heldout.png", cfg.dpi)
     summary = {
         "config": OmegaConf.to_container(OmegaConf.structured(cfg)),
-        "tuning_wall_s": tuning_s,
-        "iterations": len(result.history),
-        "stopped": result.stopped,
-        "initial_loss": result.history[0]["loss"],
-        "best_loss": result.best_loss,
+        **result.summary(),
         "hand_set": {"gains": hand, "gait": hand_gait},
         "tuned": {"gains": values, "gait": gait_values},
         "heldout": rates,
         "heldout_improved": rates["tuned"]["recovered"] > rates["hand-set"]["recovered"],
     }
     write_json(out_dir / "summary.json", summary)
-    return summary
+    return {**summary, "tuning": result.describe()}
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="tune_push")
@@ -247,10 +217,7 @@ def main(cfg) -> None:
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     with watchdog(cfg.timeout_s, "tune-push"):
         summary = run(cfg, out_dir)
-    print(
-        f"loss {summary['initial_loss']:.5g} -> {summary['best_loss']:.5g} in "
-        f"{summary['iterations']} iterations ({summary['tuning_wall_s']:.0f} s)"
-    )
+    print(summary["tuning"])
     print(f"hand-set {summary['hand_set']}\ntuned    {summary['tuned']}")
     for name, r in summary["heldout"].items():
         print(f"held out, {name}: recovered {r['recovered']}/{r['pushes']}")

@@ -1,6 +1,8 @@
 """Gain tuning: the parameterisation, gains files, the optax loop, the gradient step planner,
 and gradients through the MJX closed loop against finite differences."""
 
+import json
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -42,6 +44,29 @@ def test_gain_space_rejects_bad_names():
     base = default_gains(body_shaking_config("H2").tasks)
     with pytest.raises(ValueError, match="no task 'nope'"):
         GainSpace(("nope.kp",)).init(base)
+
+
+def test_gain_space_bandwidth_scales_frequency_at_a_fixed_damping_ratio():
+    base = default_gains(body_shaking_config("H1").tasks)
+    space = GainSpace(("body_ori.bandwidth", "com.kd"))
+    p = space.init(base, jnp.float64)
+    assert p["body_ori.bandwidth"].shape == (1,) and space.task_gains == space.tuned
+    c = 1.3
+    g = space.gains(dict(p, **{"body_ori.bandwidth": jnp.array([np.log(c)])}), base)
+    kp0, kd0 = np.asarray(base["body_ori"]["kp"]), np.asarray(base["body_ori"]["kd"])
+    kp, kd = np.asarray(g["body_ori"]["kp"]), np.asarray(g["body_ori"]["kd"])
+    np.testing.assert_allclose(np.sqrt(kp), c * np.sqrt(kp0))  # natural frequency x c
+    np.testing.assert_allclose(kd / (2 * np.sqrt(kp)), kd0 / (2 * np.sqrt(kp0)))  # damping
+    np.testing.assert_allclose(g["com"]["kd"], base["com"]["kd"])
+    values = tuned_values(space, dict(p, **{"body_ori.bandwidth": jnp.array([np.log(c)])}), base)
+    assert values["body_ori"]["kp"] == pytest.approx(list(c * c * kp0))
+    # d kp / d s = 2 kp at s = 0, d kd / d s = kd
+    dkp = jax.grad(lambda s: space.gains({**p, "body_ori.bandwidth": s}, base)["body_ori"]["kp"][0])
+    assert float(dkp(jnp.zeros(1))[0]) == pytest.approx(2 * kp0[0])
+    per_row = GainSpace(("body_ori.bandwidth",), per_row=True).init(base)
+    assert per_row["body_ori.bandwidth"].shape == np.shape(base["body_ori"]["kp"])
+    with pytest.raises(ValueError, match="already scales body_ori's kp and kd"):
+        GainSpace(("body_ori.bandwidth", "body_ori.kd"))
 
 
 def test_gain_space_tunes_replan_gamma_inside_zero_one():
@@ -266,8 +291,6 @@ def test_shaking_loss_averages_over_its_frequencies():
 
 @pytest.mark.slow
 def test_tune_gains_cli_end_to_end(tmp_path):
-    import json
-
     from cli_helpers import run_cli
 
     proc = run_cli(
@@ -289,6 +312,22 @@ def test_tune_gains_cli_end_to_end(tmp_path):
     assert load_gains(run / "tuned_gains.json")["body_ori"]["kp"]
     for name in ("loss_curve.png", "before_after.png", "history.json"):
         assert (run / name).stat().st_size > 0
+
+
+def test_tune_in_dir_keeps_the_history_on_disk(tmp_path):
+    from jaxloco.tuning.optimize import tune_in_dir
+
+    def loss(p):
+        return jnp.sum((p["x"] - 2.0) ** 2), {"dist": jnp.abs(p["x"][0] - 2.0)}
+
+    cfg = TuneConfig(iterations=5, learning_rate=0.5)
+    res = tune_in_dir(loss, {"x": jnp.zeros(1)}, cfg, tmp_path, progress=False)
+    history = json.loads((tmp_path / "history.json").read_text())
+    assert [h["iteration"] for h in history] == list(range(5))
+    assert not (tmp_path / "history.json.partial").exists()
+    s = res.summary()
+    assert s["iterations"] == 5 and s["best_loss"] < s["initial_loss"] == pytest.approx(4.0)
+    assert s["tuning_wall_s"] > 0 and "5 iterations" in res.describe()
 
 
 def test_push_loss_params_validate():
@@ -340,8 +379,6 @@ def test_push_loss_gradients_while_walking_match_finite_differences():
 
 @pytest.mark.slow
 def test_tune_push_cli_end_to_end(tmp_path):
-    import json
-
     from cli_helpers import run_cli
 
     proc = run_cli(

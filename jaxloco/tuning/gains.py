@@ -8,7 +8,13 @@ A :class:`GainSpace` says which of them are tuned and how:
   value: positive by construction, and a step in ``s`` is a relative change, so gains that
   differ by orders of magnitude (CoM ``kp`` 220 vs body ``kd`` 20) share one learning rate;
 - ``per_row=False`` (default) gives one scale per task and gain (the rows keep their
-  ratios, e.g. the CoM's horizontal/vertical), ``True`` one per row.
+  ratios, e.g. the CoM's horizontal/vertical), ``True`` one per row;
+- ``"task.bandwidth"`` tunes a task's kp and kd together, ``kp0 * exp(2 s)`` and
+  ``kd0 * exp(s)``: for the task's error dynamics ``e'' + kd e' + kp e = 0`` this scales the
+  natural frequency ``sqrt(kp)`` by ``exp(s)`` and keeps the damping ratio
+  ``kd / (2 sqrt(kp))`` hand-set. One number per task instead of two, and the one that
+  matters most: tuning kp and kd freely lowered kd until the task was under-damped
+  (session 12's tuning runs, README).
 
 Gains not named stay as they are and get no gradient.
 
@@ -32,12 +38,15 @@ from jaxloco.control.gains import GAIN_KINDS
 GAIT = "gait"
 TUNABLE_GAIT = ("replan_gamma",)
 """Gait numbers a :class:`GainSpace` can tune (``"gait.<name>"``)."""
+BANDWIDTH = "bandwidth"
+"""``"task.bandwidth"``: the task's kp and kd scaled together at a fixed damping ratio."""
+TASK_KINDS = (*GAIN_KINDS, BANDWIDTH)
 
 
 @dataclasses.dataclass(frozen=True)
 class GainSpace:
-    """Which gains are tuned: ``"task.kp"`` / ``"task.kd"`` names, e.g. ``"body_ori.kp"``,
-    and ``"gait.replan_gamma"``."""
+    """Which gains are tuned: ``"task.kp"`` / ``"task.kd"`` / ``"task.bandwidth"`` names,
+    e.g. ``"body_ori.kp"``, and ``"gait.replan_gamma"``."""
 
     tuned: tuple[str, ...] = ("body_ori.kp", "body_ori.kd")
     per_row: bool = False
@@ -55,13 +64,22 @@ class GainSpace:
                         f"GainSpace.tuned: {name!r}: the tunable gait numbers are "
                         f"{[f'{GAIT}.{k}' for k in TUNABLE_GAIT]}"
                     )
-            elif not task or kind not in GAIN_KINDS:
+            elif not task or kind not in TASK_KINDS:
                 raise ValueError(
-                    f"GainSpace.tuned: {name!r} must be 'task.kp' or 'task.kd' (task: a name "
-                    f"in the WBLC config) or one of {[f'{GAIT}.{k}' for k in TUNABLE_GAIT]}"
+                    f"GainSpace.tuned: {name!r} must be 'task.kp', 'task.kd' or "
+                    f"'task.{BANDWIDTH}' (task: a name in the WBLC config) or one of "
+                    f"{[f'{GAIT}.{k}' for k in TUNABLE_GAIT]}"
                 )
         if len(set(self.tuned)) != len(self.tuned):
             raise ValueError(f"GainSpace.tuned: names repeat in {self.tuned}")
+        for name in self.tuned:
+            task, kind = self.split(name)
+            both = [f"{task}.{k}" for k in GAIN_KINDS if f"{task}.{k}" in self.tuned]
+            if kind == BANDWIDTH and both:
+                raise ValueError(
+                    f"GainSpace.tuned: {name!r} already scales {task}'s kp and kd; do not also "
+                    f"tune {both}"
+                )
         if not self.max_log_scale > 0:
             raise ValueError(f"GainSpace.max_log_scale must be > 0; got {self.max_log_scale}")
 
@@ -96,7 +114,8 @@ class GainSpace:
         for name in self.tuned:
             task, kind = self.split(name)
             per_row = self.per_row and task != GAIT
-            size = np.shape(base_gains[task][kind])[0] if per_row else 1
+            rows = base_gains[task]["kp" if kind == BANDWIDTH else kind] if per_row else None
+            size = np.shape(rows)[0] if per_row else 1
             out[name] = jnp.zeros(size, dtype)
         return out
 
@@ -107,8 +126,11 @@ class GainSpace:
         for name in self.task_gains:
             task, kind = self.split(name)
             s = jnp.clip(params[name], -self.max_log_scale, self.max_log_scale)
-            base = jnp.asarray(gains[task][kind])
-            gains[task][kind] = base * jnp.exp(s).astype(base.dtype)
+            # bandwidth: kp ~ omega^2 and kd ~ omega at a fixed damping ratio.
+            powers = {"kp": 2.0, "kd": 1.0} if kind == BANDWIDTH else {kind: 1.0}
+            for k, power in powers.items():
+                base = jnp.asarray(gains[task][k])
+                gains[task][k] = base * jnp.exp(power * s).astype(base.dtype)
         return gains
 
     def gait_values(self, params: dict, base_gait: dict) -> dict:

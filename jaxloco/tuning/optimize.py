@@ -19,14 +19,17 @@ Every iteration checks the loss and the gradient: a non-finite value, or a gradi
 above ``max_grad_norm``, stops the loop with :class:`TuningDiverged` naming the iteration
 and what went wrong (the parameters of the last good iteration are attached). The loop
 keeps the best parameters seen and a history (loss, aux terms, gradient norm, wall time),
-shows a progress bar, and calls ``callback(record)`` each iteration (e.g. to checkpoint).
+shows a progress bar, and calls ``callback(record)`` each iteration (e.g. to checkpoint);
+:func:`tune_in_dir` uses it to keep the history on disk while the loop runs.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -34,6 +37,8 @@ import numpy as np
 import optax
 from jax.flatten_util import ravel_pytree
 from tqdm.auto import tqdm
+
+from jaxloco.runtime import write_json
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +95,25 @@ class TuneResult:
     """One dict per iteration: loss, aux terms, grad_norm, wall_s."""
     stopped: str
     """Why the loop ended: ``iterations`` or ``converged``."""
+    wall_s: float = float("nan")
+    """Wall time of the whole loop, compiles included."""
+
+    def summary(self) -> dict:
+        """The numbers a run's ``summary.json`` reports about the tuning loop."""
+        return {
+            "tuning_wall_s": self.wall_s,
+            "iterations": len(self.history),
+            "stopped": self.stopped,
+            "initial_loss": self.history[0]["loss"],
+            "best_loss": self.best_loss,
+        }
+
+    def describe(self) -> str:
+        s = self.summary()
+        return (
+            f"loss {s['initial_loss']:.5g} -> {s['best_loss']:.5g} in {s['iterations']} "
+            f"iterations ({s['tuning_wall_s']:.0f} s)"
+        )
 
 
 def value_and_grad(loss_fn: Callable, mode: str = "forward") -> Callable:
@@ -235,4 +259,29 @@ def tune(
                 break
         params, state = update(params, state, jnp.asarray(loss), grads)
     bar.close()
-    return TuneResult(best, float(best_loss), history, stopped)
+    return TuneResult(best, float(best_loss), history, stopped, time.perf_counter() - start)
+
+
+def tune_in_dir(
+    loss_fn: Callable,
+    params,
+    cfg: TuneConfig,
+    run_dir: str | os.PathLike,
+    progress: bool | str = "tuning",
+    loss_and_grad: Callable | None = None,
+) -> TuneResult:
+    """:func:`tune`, keeping the history in ``run_dir``: ``history.json.partial`` grows
+    one record per iteration while the loop runs (an interrupted run keeps its curve) and
+    becomes ``history.json`` at the end."""
+    run_dir = Path(run_dir)
+    partial = run_dir / "history.json.partial"
+    records = []
+
+    def keep(record):
+        records.append(record)
+        write_json(partial, records)
+
+    result = tune(loss_fn, params, cfg, progress, callback=keep, loss_and_grad=loss_and_grad)
+    write_json(run_dir / "history.json", result.history)
+    partial.unlink(missing_ok=True)
+    return result
