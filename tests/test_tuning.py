@@ -259,6 +259,28 @@ def test_shaking_reference_takes_a_traced_frequency_and_loss_frequencies_validat
         ShakingLossParams(frequencies=(1.0, 0.0))
 
 
+def test_shaking_simulator_takes_gains_and_frequency_as_data():
+    """One compiled shaking simulator serves every gains and frequency (tuning's
+    validation): same run as a config carrying those gains, 50 ticks on MuJoCo C."""
+    from jaxloco.control.shaking import ShakingParams
+    from jaxloco.dynamics.model import load_valkyrie
+    from jaxloco.sim.shaking import shaking_simulator, simulate_shaking
+
+    model = load_valkyrie()
+    config = body_shaking_config("H1", pinv_rtol=1e-2)
+    tuned = with_gains(config, {"body_ori": {"kp": [150.0], "kd": [25.0]}})
+    want = simulate_shaking(model, tuned, ShakingParams(ramp=0.0, frequency_hz=1.5), 0.05)
+    simulate = shaking_simulator(model, config, ShakingParams(ramp=0.0))
+    got = simulate(0.05, gains=default_gains(tuned.tasks), frequency_hz=1.5)
+    assert len(got.time) == 50 and not got.fell
+    for key in ("body_error", "torque_norm"):
+        np.testing.assert_allclose(got.outputs[key], want.outputs[key], rtol=1e-6, atol=1e-9)
+    plain = simulate(0.05)  # the config's own gains at its own 1 Hz
+    assert np.max(np.abs(plain.outputs["torque_norm"] - got.outputs["torque_norm"])) > 1.0
+    with pytest.raises(ValueError, match="duration must be > 0"):
+        simulate(0.0)
+
+
 @pytest.mark.slow
 def test_shaking_loss_averages_over_its_frequencies():
     """``frequencies=(a, b)`` is one batch of rollouts whose loss is the mean of the
@@ -298,6 +320,9 @@ def test_tune_gains_cli_end_to_end(tmp_path):
             "tune-gains",
             "tune.iterations=2",
             "problem.horizon=0.1",
+            "validation_duration=0.2",
+            "validation_every=1",
+            "validation_frequencies=[]",
             "heldout_duration=0.3",
             "heldout_frequencies=[1.0]",
             "dpi=50",
@@ -309,8 +334,14 @@ def test_tune_gains_cli_end_to_end(tmp_path):
     run = tmp_path / "run"
     summary = json.loads((run / "summary.json").read_text())
     assert summary["iterations"] == 2 and "1" in summary["heldout"]
+    assert summary["kept"]["by"] == "validation"
+    assert [r["iteration"] for r in summary["validation"]] == [0, 1]
+    scores = {r["iteration"]: r["score"] for r in summary["validation"]}
+    assert scores[summary["kept"]["iteration"]] == min(scores.values())
+    # validation_frequencies=[]: the training frequencies
+    assert set(summary["validation"][0]["runs"]) == {"0.8", "1.2"}
     assert load_gains(run / "tuned_gains.json")["body_ori"]["kp"]
-    for name in ("loss_curve.png", "before_after.png", "history.json"):
+    for name in ("loss_curve.png", "validation.png", "before_after.png", "history.json"):
         assert (run / name).stat().st_size > 0
 
 

@@ -25,28 +25,42 @@ def simulate_shaking(
     duration: float,
     fall_height: float = 0.7,
     progress: bool | str = False,
+    gains: dict | None = None,
 ) -> ClosedLoopLog:
     """Shake for ``duration`` s from the ``walk`` keyframe; logs ``body_error`` (rad),
     ``foot_slip`` (m, the largest horizontal displacement of a foot contact point from its
-    start), ``torque_norm`` (N m), ``relaxed`` and ``over_limit`` every tick."""
-    if duration <= 0:
-        raise ValueError(f"simulate_shaking: duration must be > 0 s; got {duration}")
+    start), ``torque_norm`` (N m), ``relaxed`` and ``over_limit`` every tick.
+
+    ``gains``: the WBLC gains pytree (default: ``config``'s). For many runs that differ
+    only in gains or frequency, build one :func:`shaking_simulator` instead."""
+    simulate = shaking_simulator(model, config, shaking, fall_height)
+    return simulate(duration, gains=gains, progress=progress)
+
+
+def shaking_simulator(
+    model: mujoco.MjModel, config: WBLCConfig, shaking: ShakingParams, fall_height: float = 0.7
+):
+    """``simulate(duration, gains=None, frequency_hz=None, progress=False) -> ClosedLoopLog``,
+    as :func:`simulate_shaking`. The gains and the frequency (default: ``shaking``'s) are
+    arguments of one compiled controller, so runs that differ only in them (tuning's
+    validation, held-out frequencies) share the compile and the set-up."""
     ctrl = make_wblc(model, config)
-    data = mujoco.MjData(model)
-    data.qpos[:] = keyframe_qpos(model, "walk")
-    mujoco.mj_forward(model, data)
-    refs0 = ctrl.hold_references(jnp.asarray(data.qpos))
+    data0 = mujoco.MjData(model)
+    data0.qpos[:] = keyframe_qpos(model, "walk")
+    mujoco.mj_forward(model, data0)
+    refs0 = ctrl.hold_references(jnp.asarray(data0.qpos))
     q0 = refs0["body_ori"].pos
     contact = jnp.ones(2)
     points = jnp.asarray(ctrl.point_sites)
-    points0 = jnp.asarray(data.site_xpos[np.asarray(ctrl.point_sites), :2])
+    points0 = jnp.asarray(data0.site_xpos[np.asarray(ctrl.point_sites), :2])
+    default_gains = ctrl.default_gains()
 
     @jax.jit
-    def controller(t, qpos, qvel, prev):
-        quat, vel, acc = shaking_reference(shaking, q0, t)
+    def step(t, qpos, qvel, prev, gains, frequency):
+        quat, vel, acc = shaking_reference(shaking, q0, t, frequency)
         refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
         snap = ctrl.snapshot(qpos, qvel)
-        out = ctrl(qpos, qvel, refs, contact, previous=prev, snap=snap)
+        out = ctrl(qpos, qvel, refs, contact, gains=gains, previous=prev, snap=snap)
         dg = out.diagnostics
         slip = snap.data.site_xpos[points, :2] - points0.astype(snap.data.site_xpos.dtype)
         logged = {
@@ -58,17 +72,28 @@ def simulate_shaking(
         }
         return out.torques, out.qp_state, logged
 
-    steps = int(round(duration / model.opt.timestep))
-    log, _ = run_closed_loop(
-        model,
-        data,
-        controller,
-        ctrl.initial_qp_state(),
-        steps,
-        stop=lambda d: d.qpos[2] < fall_height,
-        progress=progress,
-    )
-    return log
+    def simulate(duration, gains=None, frequency_hz=None, progress=False) -> ClosedLoopLog:
+        if duration <= 0:
+            raise ValueError(f"simulate_shaking: duration must be > 0 s; got {duration}")
+        # One dtype and structure for every call, so calls share the compiled program.
+        dtype = jnp.result_type(float)
+        g = jax.tree.map(lambda x: jnp.asarray(x, dtype), default_gains if gains is None else gains)
+        f = jnp.asarray(shaking.frequency_hz if frequency_hz is None else frequency_hz, dtype)
+        data = mujoco.MjData(model)
+        data.qpos[:] = data0.qpos
+        mujoco.mj_forward(model, data)
+        log, _ = run_closed_loop(
+            model,
+            data,
+            lambda t, qpos, qvel, prev: step(t, qpos, qvel, prev, g, f),
+            ctrl.initial_qp_state(),
+            int(round(duration / model.opt.timestep)),
+            stop=lambda d: d.qpos[2] < fall_height,
+            progress=progress,
+        )
+        return log
+
+    return simulate
 
 
 def shaking_metrics(log: ClosedLoopLog) -> dict:
