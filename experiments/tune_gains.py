@@ -169,12 +169,16 @@ def plot_validation(history, rows, kept: int, path: Path, dpi: int):
         err = [np.nan if r["runs"][f]["fell"] else r["runs"][f]["rms_body_error_rad"] for r in rows]
         fell = [r["iteration"] for r in rows if r["runs"][f]["fell"]]
         line = ax_val.plot(its, err, "o-", ms=4, label=f"{f} Hz")[0]
-        if fell:
-            ax_val.plot(fell, [ax_val.get_ylim()[1]] * len(fell), "x", color=line.get_color())
+        # Falls at the top edge (x in data, y in axes coordinates).
+        top = ax_val.get_xaxis_transform()
+        ax_val.plot(fell, [0.97] * len(fell), "x", color=line.get_color(), transform=top)
+    worst = [r["score"] if np.isfinite(r["score"]) else np.nan for r in rows]
+    ax_val.plot(its, worst, "k--", lw=1.5, label="worst (the score)")
     ax_val.axvline(kept, color="tab:red", ls="--", lw=1)
     ax_val.set(
         xlabel="iteration",
         ylabel="RMS body error (rad)",
+        yscale="log",
         title="validation on MuJoCo C (x: fell)",
     )
     for ax in (ax_loss, ax_val):

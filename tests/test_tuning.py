@@ -69,6 +69,19 @@ def test_gain_space_bandwidth_scales_frequency_at_a_fixed_damping_ratio():
         GainSpace(("body_ori.bandwidth", "body_ori.kd"))
 
 
+def test_shipped_tuned_shaking_gains_load_and_keep_the_damping_ratio():
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parent.parent / "assets/gains/body_shaking_h1_bandwidth.json"
+    config = apply_gains_file(body_shaking_config("H1"), path)
+    kp, kd = np.asarray(config.task("body_ori").kp), np.asarray(config.task("body_ori").kd)
+    hand = body_shaking_config("H1").task("body_ori")
+    assert np.all(kp > np.asarray(hand.kp))  # tuned to a higher bandwidth
+    # tuned with body_ori.bandwidth: the damping ratio is the hand-set one
+    zeta = hand.kd[0] / (2 * np.sqrt(hand.kp[0]))
+    np.testing.assert_allclose(kd / (2 * np.sqrt(kp)), zeta, rtol=1e-5)
+
+
 def test_gain_space_tunes_replan_gamma_inside_zero_one():
     from jaxloco.locomotion.gait import GaitParams
 
