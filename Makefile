@@ -35,12 +35,13 @@ walk: $(STAMP)
 # The CI suite: everything except full-size end-to-end runs (their small versions run here).
 # Two workers, one test file each at a time (tests of a file share compiled functions): XLA
 # compiles on one thread, so two at once use both cores (measured: 22:26 -> 16:21 on 2 cores).
+# Files start longest first (tests/conftest.py), not xdist's most-tests-first.
 TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=15
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder --durations=15
 
 test-all: $(STAMP)
-	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --runslow
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder --runslow
 
 bench: $(STAMP)
 	-$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[bench]"

@@ -433,8 +433,13 @@ def test_tune_push_cli_end_to_end(tmp_path):
             "pushes=[[520,0]]",
             "heldout.directions_deg=[90]",
             "heldout.magnitudes=[520]",
+            "heldout.phases=[0.5]",
             "heldout.horizon=0.3",
             "heldout.steps_after=0",
+            "validation.directions_deg=[0]",
+            "validation.magnitudes=[520]",
+            "validation.horizon=0.3",
+            "validation.steps_after=0",
             "dpi=50",
         ],
         tmp_path,
@@ -444,8 +449,15 @@ def test_tune_push_cli_end_to_end(tmp_path):
     run = tmp_path / "run"
     summary = json.loads((run / "summary.json").read_text())
     assert summary["iterations"] == 2
+    # Iterates 0 and 1 (the last) ran the validation sweep; one of them was kept.
+    assert [r["iteration"] for r in summary["validation"]] == [0, 1]
+    assert summary["kept"]["by"] == "validation" and summary["kept"]["iteration"] in (0, 1)
+    assert (run / "validation" / "iter_01" / "manifest.json").is_file()
     assert set(summary["heldout"]) == {"hand-set", "tuned"}
     assert summary["heldout"]["tuned"]["pushes"] == 1
-    assert 0 < load_gait(run / "tuned_gains.json")["replan_gamma"] < 1
-    for name in ("loss_curve.png", "heldout.png", "history.json"):
+    assert set(summary["heldout"]["tuned"]["largest_recovered_impulse_Ns"]) == {"90"}
+    gamma = load_gait(run / "tuned_gains.json")["replan_gamma"]
+    kept = summary["validation"][summary["kept"]["iteration"]]
+    assert gamma == pytest.approx(kept["gait"]["replan_gamma"])
+    for name in ("loss_curve.png", "heldout.png", "history.json", "validation.png"):
         assert (run / name).stat().st_size > 0

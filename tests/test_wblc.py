@@ -250,8 +250,14 @@ def test_torque_gradients_wrt_gains_match_finite_differences(valkyrie):
     check_grads(loss, args, order=1, modes=("fwd", "rev"), eps=1e-3, atol=1e-4, rtol=1e-4)
 
 
-def test_valkyrie_stands_10_s_under_wblc(valkyrie):
+@pytest.mark.parametrize(
+    "seconds", [3, pytest.param(10, marks=pytest.mark.slow)], ids=["3s", "10s"]
+)
+def test_valkyrie_stands_under_wblc(valkyrie, seconds):
+    """Stands still on MuJoCo C under the walking hierarchy: CoM within 1 cm, no relaxed
+    friction cone. CI runs 3 s (~20 ms a tick in float64 on 2 cores); 10 s is slow."""
     model, _, ctrl, refs, tick = valkyrie
+    ticks = 1000 * seconds
     data = mujoco.MjData(model)
     data.qpos[:] = keyframe_qpos(model, "walk")
     mujoco.mj_forward(model, data)
@@ -268,9 +274,9 @@ def test_valkyrie_stands_10_s_under_wblc(valkyrie):
         )
 
     log, _ = run_closed_loop(
-        model, data, controller, ctrl.initial_qp_state(), 10_000, stop=lambda d: d.qpos[2] < 0.8
+        model, data, controller, ctrl.initial_qp_state(), ticks, stop=lambda d: d.qpos[2] < 0.8
     )
-    assert not log.fell and len(log.time) == 10_000
+    assert not log.fell and len(log.time) == ticks
     com_err = np.linalg.norm(log.outputs["com"], axis=1)
     assert com_err.max() < 0.01, com_err.max()
     assert np.linalg.norm(data.subtree_com[1] - com0) < 0.01
