@@ -103,6 +103,29 @@ CI_SPEC = dict(
 )
 
 
+def test_paired_comparison_is_mcnemars_exact_test():
+    from scipy.stats import binomtest
+
+    from jaxloco.sweep import paired_comparison
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        a, b = rng.random(48) < 0.4, rng.random(48) < 0.5
+        got = paired_comparison(a, b)
+        only_a, only_b = int(np.sum(a & ~b)), int(np.sum(b & ~a))
+        assert (got["only_a"], got["only_b"]) == (only_a, only_b)
+        assert got["recovered_a"] == a.sum() and got["recovered_b"] == b.sum()
+        want = binomtest(only_a, only_a + only_b, 0.5).pvalue if only_a + only_b else 1.0
+        assert got["p_value"] == pytest.approx(want, rel=1e-9)
+    # Session 15's held-out sweep: 10 pushes only the tuned gamma recovered, 6 only the
+    # hand-set one: not beyond chance.
+    tuned = np.r_[np.ones(10, bool), np.zeros(6, bool), np.ones(10, bool)]
+    hand = np.r_[np.zeros(10, bool), np.ones(6, bool), np.ones(10, bool)]
+    assert paired_comparison(tuned, hand)["p_value"] == pytest.approx(0.4545, abs=1e-4)
+    with pytest.raises(ValueError, match="paired_comparison"):
+        paired_comparison(np.ones(3, bool), np.ones(4, bool))
+
+
 def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path):
     """A real sweep (C backend): two pushes in chunks of 1 (stopped after one chunk, then
     resumed) and in one chunk of 2 give the same outcomes."""

@@ -456,6 +456,7 @@ def test_tune_push_cli_end_to_end(tmp_path):
     assert set(summary["heldout"]) == {"hand-set", "tuned"}
     assert summary["heldout"]["tuned"]["pushes"] == 1
     assert set(summary["heldout"]["tuned"]["largest_recovered_impulse_Ns"]) == {"90"}
+    assert 0 < summary["heldout_paired"]["p_value"] <= 1
     gamma = load_gait(run / "tuned_gains.json")["replan_gamma"]
     kept = summary["validation"][summary["kept"]["iteration"]]
     assert gamma == pytest.approx(kept["gait"]["replan_gamma"])

@@ -9,7 +9,7 @@ numbers per push (:mod:`.outcome`) and writes them to disk as it goes (:mod:`.st
 """
 
 from jaxloco.sweep.outcome import FIELDS
-from jaxloco.sweep.report import summarize, write_report
+from jaxloco.sweep.report import paired_comparison, summarize, write_report
 from jaxloco.sweep.run import BACKENDS, SweepResult, run_sweep
 from jaxloco.sweep.spec import PushTable, SweepSpec, expand
 from jaxloco.sweep.store import SweepStore
@@ -22,6 +22,7 @@ __all__ = [
     "SweepSpec",
     "SweepStore",
     "expand",
+    "paired_comparison",
     "run_sweep",
     "summarize",
     "write_report",

@@ -6,10 +6,14 @@
 - ``summary.json`` / ``summary.md``: counts, the largest recovered impulse per direction
   (the largest impulse at which every push in that direction was recovered, and every
   smaller one too), success per phase, both with replanning on and off.
+
+:func:`paired_comparison` says whether one controller recovers more of the same pushes
+than another beyond chance (pushes at the edge of recovery flip outcome for small causes).
 """
 
 from __future__ import annotations
 
+import math
 from pathlib import Path
 
 import numpy as np
@@ -67,6 +71,26 @@ def summarize(table, outcomes, have) -> dict:
             "success_vs_phase": per_phase,
         }
     return summary
+
+
+def paired_comparison(recovered_a, recovered_b) -> dict:
+    """Controllers ``a`` and ``b`` on the same pushes (boolean arrays, one entry per push):
+    how many only ``a`` / only ``b`` recovered, and the exact two-sided McNemar p-value
+    (binomial test on those discordant pushes at 1/2): the chance of a split at least this
+    uneven if neither controller were better and each flip were a coin toss."""
+    a, b = np.asarray(recovered_a, bool), np.asarray(recovered_b, bool)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"paired_comparison: want two equal 1-D arrays; got {a.shape}, {b.shape}")
+    only_a, only_b = int(np.sum(a & ~b)), int(np.sum(b & ~a))
+    n, k = only_a + only_b, min(only_a, only_b)
+    tail = sum(math.comb(n, i) for i in range(k + 1)) / 2.0**n if n else 1.0
+    return {
+        "recovered_a": int(a.sum()),
+        "recovered_b": int(b.sum()),
+        "only_a": only_a,
+        "only_b": only_b,
+        "p_value": min(1.0, 2.0 * tail),
+    }
 
 
 def _markdown(summary: dict, manifest: dict) -> str:
