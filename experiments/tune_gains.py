@@ -54,7 +54,7 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
 from jaxloco.sim.shaking import shaking_metrics, shaking_simulator
 from jaxloco.tuning.gains import GainSpace, tuned_values
-from jaxloco.tuning.optimize import TuneConfig, tune_in_dir
+from jaxloco.tuning.optimize import TuneConfig, recorded_params, tune_in_dir
 from jaxloco.tuning.problems import ShakingLossParams, shaking_loss
 from jaxloco.tuning.rollout import tuning_physics
 from jaxloco.viz.tuning import plot_loss_curve
@@ -135,18 +135,13 @@ def shake(simulate, frequencies, duration, gains=None) -> dict:
     return out
 
 
-def as_params(recorded: dict) -> dict:
-    """Gain parameters from a history record (``{name: list}``)."""
-    return {name: jnp.asarray(v) for name, v in recorded.items()}
-
-
 def validate(simulate, frequencies, space, base, history, cfg) -> list[dict]:
     """Score every ``validation_every``-th iterate (and the last) on MuJoCo C at
     ``frequencies``: the worst RMS body error, infinite for a fall."""
     picks = sorted({*range(0, len(history), cfg.validation_every), len(history) - 1})
     rows = []
     for it in tqdm(picks, desc="validation (MuJoCo C)"):
-        params = as_params(history[it]["params"])
+        params = recorded_params(history[it])
         values = tuned_values(space, params, base)
         runs = shake(simulate, frequencies, cfg.validation_duration, space.gains(params, base))
         metrics = {f: r["metrics"] for f, r in runs.items()}
@@ -271,7 +266,7 @@ def run(cfg, out_dir: Path) -> dict:
         plot_validation(
             result.history, rows, kept["iteration"], out_dir / "validation.png", cfg.dpi
         )
-        params = as_params(result.history[kept["iteration"]]["params"])
+        params = recorded_params(result.history[kept["iteration"]])
     else:
         best = min(result.history, key=lambda h: h["loss"])["iteration"]
         selection = {"by": "training loss", "iteration": best}

@@ -9,8 +9,9 @@
 Tuning: Valkyrie walks in MJX (the sweep's physics settings, forward-mode gradients, so
 the default solver works), is pushed on the pelvis during single support of step
 ``problem.push_step`` (each training push ``[force N, direction deg]``, 0: from behind,
-90: to the left) and is scored by how far the capture point is thrown off the planned
-step, the pelvis tilt, effort and falls of the next ``problem.horizon`` seconds
+90: to the left) and is scored over the next ``problem.horizon`` seconds by a smooth count
+of the pushes whose capture point, carried to the touch-down, misses the (replanned)
+footstep by more than the undisturbed step would, plus pelvis tilt, effort and falls
 (:class:`jaxloco.tuning.problems.PushLossParams`). Optax
 minimises that over the named numbers (``gait.replan_gamma``; ``task.kp`` / ``task.kd`` /
 ``task.bandwidth`` of the walking WBLC).
@@ -58,7 +59,7 @@ from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, 
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
 from jaxloco.sweep import SweepSpec, paired_comparison, run_sweep, write_report
 from jaxloco.tuning.gains import GainSpace, tuned_values
-from jaxloco.tuning.optimize import TuneConfig, robust_value_and_grad, tune_in_dir
+from jaxloco.tuning.optimize import TuneConfig, recorded_params, robust_value_and_grad, tune_in_dir
 from jaxloco.tuning.problems import PushLossParams, push_loss
 from jaxloco.viz.tuning import plot_loss_curve
 
@@ -98,7 +99,7 @@ class TunePushConfig:
     tune: TuneSchema = field(default_factory=lambda: TuneSchema(iterations=8, learning_rate=0.2))
     # list[Any]: OmegaConf rejects ints (`[[520,0]]`) in a typed nested list.
     pushes: list[Any] = field(
-        default_factory=lambda: [[650.0, float(d)] for d in range(0, 360, 45)]
+        default_factory=lambda: [[f, float(d)] for f in (650.0, 750.0) for d in range(0, 360, 45)]
     )
     """Training pushes ``[force N, direction deg]`` (0: forward), one rollout each."""
     push_duration: float = 0.1
@@ -128,7 +129,7 @@ def _fields(obj) -> dict:
 
 ConfigStore.instance().store(name="tune_push", node=TunePushConfig)
 
-LOSS_TERMS = ("dcm", "tilt", "effort", "fallen", "untrusted")
+LOSS_TERMS = ("at_risk", "dcm", "tilt", "effort", "fallen", "untrusted")
 
 
 def training_pushes(cfg) -> jnp.ndarray:
@@ -164,7 +165,7 @@ def validate(space, base, history, gait, wblc, physics, spec, out_dir: Path, eve
     picks = sorted({*range(0, len(history), every), len(history) - 1})
     rows = []
     for it in picks:
-        params = as_params(history[it]["params"])
+        params = recorded_params(history[it])
         values, gait_values, g, w = controller_at(space, params, base, gait, wblc)
         log.info("validation: iteration %d, %s %s", it, gait_values, values)
         res = run_sweep(
@@ -172,10 +173,6 @@ def validate(space, base, history, gait, wblc, physics, spec, out_dir: Path, eve
         )
         rows.append({"iteration": it, **sweep_counts(res), "gains": values, "gait": gait_values})
     return rows
-
-
-def as_params(recorded: dict) -> dict:
-    return {name: jnp.asarray(v) for name, v in recorded.items()}
 
 
 def plot_validation(history, rows, kept: int, path: Path, dpi: int):
@@ -293,7 +290,7 @@ def run(cfg, out_dir: Path) -> dict:
     else:
         best = min(result.history, key=lambda h: h["loss"])["iteration"]
         selection = {"by": "training loss", "iteration": best}
-    params = as_params(result.history[selection["iteration"]]["params"])
+    params = recorded_params(result.history[selection["iteration"]])
     values, gait_values, tuned_gait, tuned_wblc = controller_at(space, params, base, gait, wblc)
     hand = tuned_values(space, space.init(base), base)
     hand_gait = {k: getattr(gait, k) for k in gait_values}

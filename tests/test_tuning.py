@@ -359,7 +359,7 @@ def test_tune_gains_cli_end_to_end(tmp_path):
 
 
 def test_tune_in_dir_keeps_the_history_on_disk(tmp_path):
-    from jaxloco.tuning.optimize import tune_in_dir
+    from jaxloco.tuning.optimize import recorded_params, tune_in_dir
 
     def loss(p):
         return jnp.sum((p["x"] - 2.0) ** 2), {"dist": jnp.abs(p["x"][0] - 2.0)}
@@ -372,6 +372,9 @@ def test_tune_in_dir_keeps_the_history_on_disk(tmp_path):
     s = res.summary()
     assert s["iterations"] == 5 and s["best_loss"] < s["initial_loss"] == pytest.approx(4.0)
     assert s["tuning_wall_s"] > 0 and "5 iterations" in res.describe()
+    # The lowest-loss record on disk gives back the returned parameters.
+    best = min(history, key=lambda h: h["loss"])
+    np.testing.assert_allclose(recorded_params(best)["x"], res.params["x"], rtol=1e-6)
 
 
 def test_push_loss_params_validate():
@@ -381,11 +384,52 @@ def test_push_loss_params_validate():
         {"horizon": 0.0},
         {"phase": 1.5},
         {"dcm_weight": -1.0},
+        {"risk_weight": -1.0},
+        {"risk_threshold": 0.0},
+        {"risk_temperature": 0.0},
+        {"dcm_reference": "measured"},
         {"push_step": 0},
         {"apex_speed": 0.0},
     ):
         with pytest.raises(ValueError, match=f"PushLossParams.{next(iter(bad))}"):
             PushLossParams(**bad)
+
+
+def test_touchdown_capture_point_matches_integrating_the_lipm():
+    """The push loss's capture point at touch-down: the measured CoM state integrated
+    under the LIPM about the stance foot (RK4, 1e-4 s) to the planned touch-down; its
+    capture point minus the footstep."""
+    from types import SimpleNamespace
+
+    from jaxloco.tuning.problems import _touchdown_dcm_offset
+
+    omega = float(np.sqrt(9.81 / 1.0))
+    stance = np.array([0.3, -0.1])
+    gait = SimpleNamespace(
+        stance_pos=jnp.array([*stance, 0.0]),
+        step_start=jnp.array(2.0),
+        step_duration=jnp.array(0.45),
+        target=jnp.array([0.75, 0.15, 0.0]),
+    )
+    com, vel, t = np.array([0.38, -0.05]), np.array([0.6, 0.25]), 2.17
+    dcm = com + vel / omega
+    got = np.asarray(_touchdown_dcm_offset(gait, jnp.asarray(dcm), t, omega))
+
+    def f(s):
+        return np.concatenate([s[2:], omega**2 * (s[:2] - stance)])
+
+    s, dt = np.concatenate([com, vel]), 1e-4
+    for _ in range(int(round((2.0 + 0.45 - t) / dt))):
+        k1 = f(s)
+        k2 = f(s + 0.5 * dt * k1)
+        k3 = f(s + 0.5 * dt * k2)
+        k4 = f(s + dt * k3)
+        s = s + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    want = s[:2] + s[2:] / omega - np.array([0.75, 0.15])
+    np.testing.assert_allclose(got, want, atol=1e-9)
+    # After the planned touch-down the capture point is not carried any further.
+    late = np.asarray(_touchdown_dcm_offset(gait, jnp.asarray(dcm), 2.6, omega))
+    np.testing.assert_allclose(late, dcm - np.array([0.75, 0.15]), atol=1e-12)
 
 
 @pytest.mark.slow
@@ -411,7 +455,7 @@ def test_push_loss_gradients_while_walking_match_finite_differences():
     fn = jax.jit(lambda p: loss(p, pushes))
     (l0, aux), g = jax.jit(value_and_grad(fn, "forward"))(p0)
     assert np.isfinite(float(l0)) and float(aux["fallen"]) == 0.0
-    assert float(aux["dcm"]) > 0 and float(aux["tilt"]) > 0
+    assert float(aux["dcm"]) > 0 and float(aux["tilt"]) > 0 and 0 < float(aux["at_risk"]) < 1
     for name in p0:
         eps = 1e-3
         up = float(fn({**p0, name: p0[name] + eps})[0])

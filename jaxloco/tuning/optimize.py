@@ -116,6 +116,11 @@ class TuneResult:
         )
 
 
+def recorded_params(record: dict) -> dict:
+    """The parameters of one history record (``{name: list}`` on disk) as arrays."""
+    return {name: jnp.asarray(v) for name, v in record["params"].items()}
+
+
 def value_and_grad(loss_fn: Callable, mode: str = "forward") -> Callable:
     """``params -> ((loss, aux), grads)`` for ``loss_fn(params) -> (loss, aux)`` by forward
     (one ``jvp`` per parameter entry, vmapped) or reverse mode."""
