@@ -4,6 +4,7 @@
     jaxloco tune-push 'tuned=[gait.replan_gamma,com.bandwidth]' tune.iterations=10
     jaxloco tune-push 'pushes=[[650,0],[650,90],[650,180],[650,270]]' problem.horizon=0.2
     jaxloco tune-push validate=false                        # keep the lowest training loss
+    jaxloco tune-push 'tuned=[gait.replan_gamma,gait.replan_threshold]' tune.gradient=smoothed
     jaxloco tune-push 'heldout.magnitudes=[600,700]' 'heldout.phases=[0.5]'
 
 Tuning: Valkyrie walks in MJX (the sweep's physics settings, forward-mode gradients, so
@@ -265,7 +266,14 @@ def run(cfg, out_dir: Path) -> dict:
         return loss(p, push[None])
 
     grad_fn = jax.jit(
-        robust_value_and_grad(push_loss_fn, pushes, tune_cfg.gradient, cfg.max_push_grad_norm)
+        robust_value_and_grad(
+            push_loss_fn,
+            pushes,
+            tune_cfg.gradient,
+            cfg.max_push_grad_norm,
+            sigma=tune_cfg.smoothing_sigma,
+            pairs=tune_cfg.smoothing_pairs,
+        )
     )
     result = tune_in_dir(lambda p: loss(p, pushes), p0, tune_cfg, out_dir, loss_and_grad=grad_fn)
     fig = plot_loss_curve(result.history, LOSS_TERMS, "push-recovery tuning loss")

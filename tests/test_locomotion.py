@@ -169,6 +169,32 @@ def test_walking_com_reference_is_the_lipm_and_contacts_blend():
     assert float(after.contact[1 - swing]) == 1.0
 
 
+def test_replan_threshold_is_per_robot_data():
+    """Eq. 33's trigger comes from the gait state: the same 8 cm CoM error replans a robot
+    whose threshold is 5 cm and not one whose threshold is 20 cm."""
+    psp, params = PSPParams(), GaitParams()
+    feet = jnp.array([[0.0, 0.14, 0.0], [0.0, -0.14, 0.0]])
+    policy = lambda s: jnp.array([0.25, 0.2, 0.0])  # noqa: E731
+    t_lift, dt = params.start_duration, 1e-3
+    replans = {}
+    for threshold in (0.05, 0.2):
+        state = gait_lib.init_gait(
+            params, psp, jnp.array([0.0, 0.0, 1.06]), feet, replan_threshold=threshold
+        )
+        assert float(state.replan_threshold) == threshold
+        zero = jnp.zeros(3)
+        state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
+        step = jax.jit(
+            lambda s, t, c, v: gait_lib.advance(s, params, psp, policy, t, c, v, feet, dt)
+        )
+        for k in range(50, 100):
+            t = t_lift + k * dt
+            pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
+            state = step(state, t, pos + jnp.array([0.08, 0.0, 0.0]), vel)
+        replans[threshold] = int(state.replans)
+    assert replans[0.05] >= 1 and replans[0.2] == 0, replans
+
+
 # --- pushes -----------------------------------------------------------------------------
 
 

@@ -105,7 +105,50 @@ def test_gain_space_tunes_replan_gamma_inside_zero_one():
     )
     assert float(grad(jnp.zeros(1))[0]) == pytest.approx(0.25)  # sigmoid' at 0
     with pytest.raises(ValueError, match="tunable gait numbers"):
-        GainSpace(("gait.replan_threshold",))
+        GainSpace(("gait.replan_delay",))
+
+
+def test_gain_space_tunes_the_replan_threshold_as_a_positive_scale():
+    from jaxloco.locomotion.gait import GaitParams
+
+    base_gait = {"replan_threshold": GaitParams().replan_threshold}
+    space = GainSpace(("gait.replan_threshold",), max_log_scale=2.0)
+    p = space.init({}, jnp.float64)
+    assert space.gait_numbers == ("replan_threshold",) and space.task_gains == ()
+    for s, expected in ((0.0, 0.05), (np.log(2.0), 0.1), (-50.0, 0.05 * np.exp(-2.0))):
+        q = {"gait.replan_threshold": jnp.array([s])}
+        value = float(space.gait_values(q, base_gait)["replan_threshold"])
+        assert value == pytest.approx(expected)
+    assert float(space.gait_values(p, base_gait)["replan_threshold"]) == pytest.approx(0.05)
+
+
+def test_smoothed_gradient_sees_a_step_that_pathwise_derivatives_miss():
+    """``loss = [x0 > 0] + x1^2``: the pathwise derivative in x0 is zero; the smoothed
+    estimator gives the derivative of the Gaussian-smoothed loss, ``phi(x0 / s) / s`` and
+    ``2 x1``, to its Monte Carlo error."""
+    from jaxloco.tuning.optimize import value_and_grad
+
+    def loss(p):
+        x = p["x"]
+        return (x[0] > 0).astype(x.dtype) + x[1] ** 2, {"x1": x[1]}
+
+    p = {"x": jnp.array([0.05, 0.3], jnp.float64)}
+    (l_fwd, _), g_fwd = jax.jit(value_and_grad(loss, "forward"))(p)
+    assert float(g_fwd["x"][0]) == 0.0  # the step is invisible to derivatives
+    sigma, pairs = 0.1, 20000
+    (l0, aux), g = jax.jit(value_and_grad(loss, "smoothed", sigma, pairs, seed=3))(p)
+    assert float(l0) == pytest.approx(1.09) == float(l_fwd) and float(aux["x1"]) == 0.3
+    step_slope = np.exp(-0.5 * 0.5**2) / np.sqrt(2 * np.pi) / sigma  # phi(0.5) / 0.1 = 3.52
+    np.testing.assert_allclose(np.asarray(g["x"]), [step_slope, 0.6], atol=0.1)
+    # Deterministic for a given seed; another seed is another draw.
+    (_, _), again = jax.jit(value_and_grad(loss, "smoothed", sigma, pairs, seed=3))(p)
+    np.testing.assert_array_equal(np.asarray(again["x"]), np.asarray(g["x"]))
+    with pytest.raises(ValueError, match="sigma > 0"):
+        value_and_grad(loss, "smoothed", 0.0)
+    with pytest.raises(ValueError, match="TuneConfig.smoothing_sigma"):
+        TuneConfig(smoothing_sigma=-1.0)
+    with pytest.raises(ValueError, match="TuneConfig.gradient"):
+        TuneConfig(gradient="numeric")
 
 
 def test_gains_file_carries_tuned_gait_numbers(tmp_path):
@@ -473,6 +516,10 @@ def test_tune_push_cli_end_to_end(tmp_path):
         [
             "tune-push",
             "tune.iterations=2",
+            # Both gait numbers, by smoothed gradients (the threshold has no pathwise one).
+            "tuned=[gait.replan_gamma,gait.replan_threshold]",
+            "tune.gradient=smoothed",
+            "tune.smoothing_pairs=1",
             "problem.horizon=0.05",
             "pushes=[[520,0]]",
             "heldout.directions_deg=[90]",
@@ -501,8 +548,13 @@ def test_tune_push_cli_end_to_end(tmp_path):
     assert summary["heldout"]["tuned"]["pushes"] == 1
     assert set(summary["heldout"]["tuned"]["largest_recovered_impulse_Ns"]) == {"90"}
     assert 0 < summary["heldout_paired"]["p_value"] <= 1
-    gamma = load_gait(run / "tuned_gains.json")["replan_gamma"]
+    gait = load_gait(run / "tuned_gains.json")
     kept = summary["validation"][summary["kept"]["iteration"]]
-    assert gamma == pytest.approx(kept["gait"]["replan_gamma"])
+    assert set(gait) == {"replan_gamma", "replan_threshold"}
+    for name, value in gait.items():
+        assert value == pytest.approx(kept["gait"][name])
+    # The smoothed gradient moved the threshold at the first step.
+    history = json.loads((run / "history.json").read_text())
+    assert history[1]["params"]["gait.replan_threshold"] != [0.0]
     for name in ("loss_curve.png", "heldout.png", "history.json", "validation.png"):
         assert (run / name).stat().st_size > 0

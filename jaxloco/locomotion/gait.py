@@ -91,7 +91,10 @@ class GaitParams:
     step is clipped to them (``y`` > 0 keeps the legs from crossing)."""
     replan: bool = True
     replan_threshold: float = 0.05
-    """Eq. 33's error norm that triggers replanning."""
+    """Eq. 33's error norm that triggers replanning. Per robot it is data
+    (``init_gait(replan_threshold=...)``), like ``replan_gamma``; as a trigger its
+    pathwise derivative is zero almost everywhere, so tune it with smoothed gradients
+    (``TuneConfig(gradient="smoothed")``)."""
     replan_delay: float = 0.02
     """How long the error must stay above the threshold (s)."""
     replan_gamma: float = 0.5
@@ -200,6 +203,8 @@ class GaitState:
     """The policy's next-apex velocity is clipped to this (m/s)."""
     replan_gamma: jax.Array
     """Eq. 34's blend for this robot (``GaitParams.replan_gamma`` unless overridden)."""
+    replan_threshold: jax.Array
+    """Eq. 33's trigger for this robot (``GaitParams.replan_threshold`` unless overridden)."""
     replans: jax.Array
     failed_plans: jax.Array
     last_apex: jax.Array
@@ -271,12 +276,14 @@ def init_gait(
     replan=None,
     apex_speed=None,
     replan_gamma=None,
+    replan_threshold=None,
 ) -> GaitState:
     """The gait at rest in double support (phase START), for a CoM at ``com`` (3,) and the
     feet's contact frames at ``feet_pos`` (2, 3) (left, right); ``heading`` is the walking
-    direction (rad), ``turns`` the per-step heading changes; ``replan``, ``apex_speed`` and
-    ``replan_gamma`` override ``params.replan``, ``params.max_apex_speed`` and
-    ``params.replan_gamma`` for this robot."""
+    direction (rad), ``turns`` the per-step heading changes; ``replan``, ``apex_speed``,
+    ``replan_gamma`` and ``replan_threshold`` override ``params.replan``,
+    ``params.max_apex_speed``, ``params.replan_gamma`` and ``params.replan_threshold`` for
+    this robot."""
     com = jnp.asarray(com)
     dtype = com.dtype
     feet_pos = jnp.asarray(feet_pos, dtype)
@@ -317,6 +324,9 @@ def init_gait(
         ),
         replan_gamma=jnp.asarray(
             params.replan_gamma if replan_gamma is None else replan_gamma, dtype
+        ),
+        replan_threshold=jnp.asarray(
+            params.replan_threshold if replan_threshold is None else replan_threshold, dtype
         ),
         replans=jnp.asarray(0, jnp.int32),
         failed_plans=jnp.asarray(0, jnp.int32),
@@ -581,7 +591,7 @@ def advance(
     elapsed = t - state.step_start
     swinging = (state.phase == WALK) & (elapsed >= params.contact_blend)
     remaining = state.step_duration - elapsed
-    over = swinging & (err > params.replan_threshold) & (remaining > params.replan_min_remaining)
+    over = swinging & (err > state.replan_threshold) & (remaining > params.replan_min_remaining)
     error_time = jnp.where(over, state.error_time + dt, 0.0)
     state = state.replace(error_time=error_time)
     trigger = over & (error_time > params.replan_delay) & state.replan_on

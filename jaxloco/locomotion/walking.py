@@ -59,10 +59,12 @@ class WalkingController:
         replan=None,
         apex_speed=None,
         replan_gamma=None,
+        replan_threshold=None,
     ) -> WalkingState:
         """The controller's state for a robot standing at ``qpos`` (``replan``,
-        ``apex_speed``, ``replan_gamma``: override ``GaitParams.replan``,
-        ``.max_apex_speed`` and ``.replan_gamma`` for this robot)."""
+        ``apex_speed``, ``replan_gamma``, ``replan_threshold``: override
+        ``GaitParams.replan``, ``.max_apex_speed``, ``.replan_gamma`` and
+        ``.replan_threshold`` for this robot)."""
         qpos = jnp.asarray(qpos)
         qvel = jnp.zeros(self.wblc.mx.nv, qpos.dtype) if qvel is None else jnp.asarray(qvel)
         snap = self.wblc.snapshot(qpos, qvel)
@@ -78,6 +80,7 @@ class WalkingController:
             replan,
             apex_speed,
             replan_gamma,
+            replan_threshold,
         )
         return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
 

@@ -19,8 +19,11 @@ A :class:`GainSpace` says which of them are tuned and how:
 Gains not named stay as they are and get no gradient.
 
 Gait numbers that are data per robot can be tuned too: ``"gait.replan_gamma"`` (Eq. 34's
-blend, in [0, 1]) is ``sigmoid(logit(hand-set) + s)``, so it stays inside (0, 1) and
-``s = 0`` is again the hand-set value (:meth:`GainSpace.gait_values`). Results are saved with
+blend, in [0, 1]) is ``sigmoid(logit(hand-set) + s)``, so it stays inside (0, 1), and
+``"gait.replan_threshold"`` (Eq. 33's trigger, > 0) is ``hand-set * exp(s)``; ``s = 0`` is
+again the hand-set value (:meth:`GainSpace.gait_values`). The threshold's pathwise
+derivative is zero almost everywhere (it only decides *when* a replan fires), so tune it
+with ``TuneConfig(gradient="smoothed")``. Results are saved with
 :func:`jaxloco.control.gains.save_gains`, a small JSON file every experiment loads with
 ``gains_file=...`` on its command line.
 """
@@ -36,7 +39,7 @@ import numpy as np
 from jaxloco.control.gains import GAIN_KINDS
 
 GAIT = "gait"
-TUNABLE_GAIT = ("replan_gamma",)
+TUNABLE_GAIT = ("replan_gamma", "replan_threshold")
 """Gait numbers a :class:`GainSpace` can tune (``"gait.<name>"``)."""
 BANDWIDTH = "bandwidth"
 """``"task.bandwidth"``: the task's kp and kd scaled together at a fixed damping ratio."""
@@ -46,7 +49,7 @@ TASK_KINDS = (*GAIN_KINDS, BANDWIDTH)
 @dataclasses.dataclass(frozen=True)
 class GainSpace:
     """Which gains are tuned: ``"task.kp"`` / ``"task.kd"`` / ``"task.bandwidth"`` names,
-    e.g. ``"body_ori.kp"``, and ``"gait.replan_gamma"``."""
+    e.g. ``"body_ori.kp"``, and ``"gait.replan_gamma"`` / ``"gait.replan_threshold"``."""
 
     tuned: tuple[str, ...] = ("body_ori.kp", "body_ori.kd")
     per_row: bool = False
@@ -139,9 +142,12 @@ class GainSpace:
         out = {}
         for kind in self.gait_numbers:
             s = jnp.clip(params[f"{GAIT}.{kind}"], -self.max_log_scale, self.max_log_scale)
-            # Kept off 0 and 1, where the logit is infinite.
-            g0 = float(np.clip(base_gait[kind], 1e-3, 1 - 1e-3))
-            out[kind] = jax.nn.sigmoid(np.log(g0 / (1 - g0)) + s[0])
+            if kind == "replan_gamma":
+                # Kept off 0 and 1, where the logit is infinite.
+                g0 = float(np.clip(base_gait[kind], 1e-3, 1 - 1e-3))
+                out[kind] = jax.nn.sigmoid(np.log(g0 / (1 - g0)) + s[0])
+            else:  # a positive number: a relative change, like the gains
+                out[kind] = float(base_gait[kind]) * jnp.exp(s[0])
         return out
 
 

@@ -40,13 +40,22 @@ from tqdm.auto import tqdm
 
 from jaxloco.runtime import write_json
 
+GRADIENT_MODES = ("forward", "reverse", "smoothed")
+
 
 @dataclasses.dataclass(frozen=True)
 class TuneConfig:
     method: str = "adam"
     """``adam`` or ``lbfgs``."""
     gradient: str = "forward"
-    """``forward`` (jvp per parameter) or ``reverse`` (backpropagation)."""
+    """``forward`` (jvp per parameter), ``reverse`` (backpropagation) or ``smoothed`` (the
+    gradient of the loss averaged over Gaussian perturbations of the parameters, from loss
+    values only: for triggers such as the replan threshold, whose pathwise derivative is
+    zero almost everywhere; see :func:`value_and_grad`)."""
+    smoothing_sigma: float = 0.1
+    """``smoothed``: the perturbations' standard deviation (parameter units: log-scales)."""
+    smoothing_pairs: int = 4
+    """``smoothed``: antithetic pairs of perturbations per gradient (2x this many losses)."""
     iterations: int = 20
     learning_rate: float = 0.1
     """Adam's step (in log-gain units: 0.1 is a ~10% change of a gain)."""
@@ -63,9 +72,14 @@ class TuneConfig:
     def __post_init__(self):
         if self.method not in ("adam", "lbfgs"):
             raise ValueError(f"TuneConfig.method must be 'adam' or 'lbfgs'; got {self.method!r}")
-        if self.gradient not in ("forward", "reverse"):
+        if self.gradient not in GRADIENT_MODES:
             raise ValueError(
-                f"TuneConfig.gradient must be 'forward' or 'reverse'; got {self.gradient!r}"
+                f"TuneConfig.gradient must be one of {GRADIENT_MODES}; got {self.gradient!r}"
+            )
+        if not self.smoothing_sigma > 0 or self.smoothing_pairs < 1:
+            raise ValueError(
+                "TuneConfig.smoothing_sigma must be > 0 and smoothing_pairs >= 1; got "
+                f"{self.smoothing_sigma}, {self.smoothing_pairs}"
             )
         if self.iterations < 1:
             raise ValueError(f"TuneConfig.iterations must be >= 1; got {self.iterations}")
@@ -121,13 +135,27 @@ def recorded_params(record: dict) -> dict:
     return {name: jnp.asarray(v) for name, v in record["params"].items()}
 
 
-def value_and_grad(loss_fn: Callable, mode: str = "forward") -> Callable:
+def value_and_grad(
+    loss_fn: Callable, mode: str = "forward", sigma: float = 0.1, pairs: int = 4, seed: int = 0
+) -> Callable:
     """``params -> ((loss, aux), grads)`` for ``loss_fn(params) -> (loss, aux)`` by forward
-    (one ``jvp`` per parameter entry, vmapped) or reverse mode."""
+    (one ``jvp`` per parameter entry, vmapped) or reverse mode, or ``smoothed``.
+
+    ``smoothed`` estimates the gradient of ``E[loss(params + sigma * eps)]``, ``eps`` standard
+    normal, from ``2 * pairs`` loss values (vmapped): ``sum_i (loss(p + sigma eps_i) -
+    loss(p - sigma eps_i)) eps_i / (2 sigma pairs)``. It needs no derivative of the loss, so
+    it sees what a pathwise derivative cannot: a parameter that moves *when* a discrete
+    event happens (the replan threshold) has zero pathwise derivative almost everywhere,
+    while the smoothed loss has a slope. The perturbations are drawn once (``seed``), so the
+    estimate is a deterministic function of ``params``; the loss and aux returned are those
+    at ``params`` itself.
+    """
     if mode == "reverse":
         return jax.value_and_grad(loss_fn, has_aux=True)
+    if mode == "smoothed":
+        return _smoothed_value_and_grad(loss_fn, sigma, pairs, seed)
     if mode != "forward":
-        raise ValueError(f"gradient mode must be 'forward' or 'reverse'; got {mode!r}")
+        raise ValueError(f"gradient mode must be one of {GRADIENT_MODES}; got {mode!r}")
 
     def forward(params):
         flat, unravel = ravel_pytree(params)
@@ -144,8 +172,28 @@ def value_and_grad(loss_fn: Callable, mode: str = "forward") -> Callable:
     return forward
 
 
+def _smoothed_value_and_grad(loss_fn: Callable, sigma: float, pairs: int, seed: int):
+    if not sigma > 0 or pairs < 1:
+        raise ValueError(f"smoothed gradients need sigma > 0 and pairs >= 1; got {sigma}, {pairs}")
+
+    def fn(params):
+        flat, unravel = ravel_pytree(params)
+        eps = jax.random.normal(jax.random.key(seed), (pairs, flat.size), flat.dtype)
+        points = jnp.concatenate([flat[None], flat + sigma * eps, flat - sigma * eps])
+        losses, auxes = jax.vmap(lambda x: loss_fn(unravel(x)))(points)
+        diff = losses[1 : 1 + pairs] - losses[1 + pairs :]
+        grad = jnp.tensordot(diff, eps, axes=1) / (2 * sigma * pairs)
+        return (losses[0], jax.tree.map(lambda v: v[0], auxes)), unravel(grad)
+
+    return fn
+
+
 def robust_value_and_grad(
-    sample_loss: Callable, samples, mode: str = "forward", max_sample_grad_norm: float = 100.0
+    sample_loss: Callable,
+    samples,
+    mode: str = "forward",
+    max_sample_grad_norm: float = 100.0,
+    **smoothing,
 ) -> Callable:
     """``params -> ((loss, aux), grads)`` for the mean over ``samples`` (leading axis) of
     ``sample_loss(params, sample) -> (loss, aux)``, where the gradient averages only the
@@ -155,13 +203,14 @@ def robust_value_and_grad(
     1e7 times what central differences give while the other samples' agree with theirs
     (measured: 1 of 8 walking pushes, ``problems.push_loss``). One such sample decides the
     mean; dropping it leaves the gradient of the samples that can be trusted. The loss
-    still averages them all; ``aux["untrusted"]`` is the fraction dropped.
+    still averages them all; ``aux["untrusted"]`` is the fraction dropped. ``smoothing``:
+    ``sigma``, ``pairs``, ``seed`` of ``mode="smoothed"`` (:func:`value_and_grad`).
     """
     if not max_sample_grad_norm > 0:
         raise ValueError(f"max_sample_grad_norm must be > 0; got {max_sample_grad_norm}")
 
     def one(params, sample):
-        return value_and_grad(lambda p: sample_loss(p, sample), mode)(params)
+        return value_and_grad(lambda p: sample_loss(p, sample), mode, **smoothing)(params)
 
     def fn(params):
         (loss, aux), grads = jax.vmap(one, in_axes=(None, 0))(params, samples)
@@ -204,7 +253,9 @@ def tune(
     (its compile is most of a short run's time)."""
     opt = optimizer(cfg)
     if loss_and_grad is None:
-        loss_and_grad = jax.jit(value_and_grad(loss_fn, cfg.gradient))
+        loss_and_grad = jax.jit(
+            value_and_grad(loss_fn, cfg.gradient, cfg.smoothing_sigma, cfg.smoothing_pairs)
+        )
     plain_loss = jax.jit(lambda p: loss_fn(p)[0])
 
     @jax.jit
