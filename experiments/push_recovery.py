@@ -2,6 +2,7 @@
 
     jaxloco push-recovery                                   # 520 N x 0.1 s, 8 directions
     jaxloco push-recovery 'directions_deg=[0,90]' magnitude=400 videos=false
+    jaxloco push-recovery gains_file=outputs/tune/tuned_gains.json  # tune-push's gains/gamma
 
 Each push starts at ``push_time`` (mid single support on the default gait). Every direction
 runs twice, with the learned planner replanning after the push and with replanning off, next
@@ -29,6 +30,8 @@ from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
 from jaxloco.config import config_schema, to_params
+from jaxloco.control.gains import apply_gains_file, apply_gait_file
+from jaxloco.control.presets import walking_config
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
@@ -61,6 +64,9 @@ class PushRecoveryConfig:
     """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
     physics: PhysicsSchema = field(default_factory=PhysicsSchema)
     """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
+    gains_file: str = ""
+    """A tuned gains file (``jaxloco tune-push`` writes ``tuned_gains.json``): its WBLC gains
+    and its gait section (``replan_gamma``, ``replan_threshold``) replace the defaults."""
     planner: str = ""
     """RL-PSP checkpoint folder (``jaxloco train-planner`` writes one); empty: the shipped one."""
     videos: bool = True
@@ -111,13 +117,15 @@ def _outcome(res, push_time, steps_after):
 def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
     model = load_valkyrie()
     physics = to_params(PhysicsParams, cfg.physics)
-    gait = to_params(GaitParams, cfg.gait)
+    gait = apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file)
+    config = apply_gains_file(walking_config(), cfg.gains_file)
     variants = {"replan": gait}
     if cfg.compare_no_replan:
         variants["no_replan"] = dataclasses.replace(gait, replan=False)
     planner = load_planner(cfg.planner or None)
     ctrls = {
-        k: make_walking_controller(model, gait=g, planner=planner) for k, g in variants.items()
+        k: make_walking_controller(model, config=config, gait=g, planner=planner)
+        for k, g in variants.items()
     }
     results, runs = {}, {}
     with watchdog(cfg.timeout_s, "push-recovery"):

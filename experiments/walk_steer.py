@@ -2,6 +2,7 @@
 
     jaxloco walk-steer                              # the paper's schedule
     jaxloco walk-steer 'segments=[[4,10.0]]' video=false
+    jaxloco walk-steer gains_file=outputs/tune/tuned_gains.json   # tune-push's gains/gamma
 
 The learned RL-PSP policy picks every footstep and its timing; the user gives only the
 heading change per step. Simulated in MuJoCo at 1 kHz under the walking WBLC.
@@ -22,6 +23,8 @@ from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
 from jaxloco.config import config_schema, to_params
+from jaxloco.control.gains import apply_gains_file, apply_gait_file
+from jaxloco.control.presets import walking_config
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
@@ -52,6 +55,9 @@ class WalkSteerConfig:
     """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
     physics: PhysicsSchema = field(default_factory=PhysicsSchema)
     """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
+    gains_file: str = ""
+    """A tuned gains file (``jaxloco tune-push`` writes ``tuned_gains.json``): its WBLC gains
+    and its gait section (``replan_gamma``, ``replan_threshold``) replace the defaults."""
     planner: str = ""
     """RL-PSP checkpoint folder (``jaxloco train-planner`` writes one); empty: the shipped one."""
     video: bool = True
@@ -67,7 +73,9 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
     model = load_valkyrie()
     turns = turn_schedule([tuple(s) for s in cfg.segments])
     planner = load_planner(cfg.planner or None)
-    ctrl = make_walking_controller(model, gait=to_params(GaitParams, cfg.gait), planner=planner)
+    gait = apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file)
+    config = apply_gains_file(walking_config(), cfg.gains_file)
+    ctrl = make_walking_controller(model, config=config, gait=gait, planner=planner)
     total = len(turns) + cfg.extra_steps
     with watchdog(cfg.timeout_s, "walk-steer"):
         res = simulate_walk(

@@ -379,6 +379,20 @@ def test_walk_steer_paper_schedule_completes(tmp_path):
     assert summary["max_com_error_m"] < 0.05
 
 
+@pytest.mark.parametrize("experiment", ["walk-steer", "push-recovery"])
+def test_walking_experiments_load_a_gains_file(tmp_path, experiment):
+    """The gains file's gait section reaches GaitParams (whose range check then refuses a
+    gamma of 2) before anything is simulated."""
+    from cli_helpers import run_cli
+
+    from jaxloco.control.gains import save_gains
+
+    path = save_gains(tmp_path / "g.json", {}, gait={"replan_gamma": 2.0})
+    proc = run_cli([experiment, f"gains_file={path}"], tmp_path, timeout=300)
+    assert proc.returncode != 0
+    assert "GaitParams.replan_gamma must be in [0, 1]" in proc.stderr, proc.stderr[-2000:]
+
+
 def test_render_gif_twice_headless_falls_back_without_aborting(tmp_path):
     """Without a display or a headless GL backend, MuJoCo's GLFW renderer fails, and a
     second attempt in the same process has aborted it: ``auto`` must draw stick figures."""
