@@ -193,7 +193,7 @@ class PushLossParams:
     decades over pushes and a mean of it follows the few hopeless ones, while whether a
     push is recovered turns on whether it is above a threshold (measured, session 16, on
     the 24 validation pushes at gammas 0.1/0.3/0.5/0.7 against their 2.5 s outcomes on
-    MuJoCo C: ``dcm`` > 0.02 marked the falls of 80-88% of pushes; the mean of ``dcm``
+    MuJoCo C: ``dcm`` > 0.02 marked the falls of 79-88% of pushes; the mean of ``dcm``
     ranked gamma 0.5 best, the soft count ranked the gammas as the outcomes did).
 
     ``xi = c + c_dot / omega`` is the CoM's horizontal divergent component (capture point).
