@@ -1,6 +1,8 @@
-"""Train the RL-PSP step policy (Algorithm 1, batched) and save it with its learning curve.
+"""Train the RL-PSP step policy (Algorithm 1, batched; then refined through the
+differentiable planner) and save it with its learning curve.
 
-    jaxloco train-planner                              # the FAST preset
+    jaxloco train-planner                              # the FAST preset, then refinement
+    jaxloco train-planner refine.iterations=0          # Algorithm 1 alone, as the paper
     jaxloco train-planner actor_critic.max_iterations=400 actor_critic.seed=3
     jaxloco train-planner hydra.run.dir=runs/planner   # choose the output folder
     jaxloco train-planner resume_from=runs/planner/checkpoint
@@ -26,6 +28,7 @@ from jaxloco.learning import (
     EpisodeTurns,
     EvalConfig,
     RBFGrid,
+    RefineConfig,
     StartStates,
     TrainConfig,
     save_checkpoint,
@@ -44,6 +47,7 @@ StartsSchema = config_schema(StartStates)
 PlannerSchema = config_schema(PSPParams)
 EvalSchema = config_schema(EvalConfig)
 TurnsSchema = config_schema(EpisodeTurns)
+RefineSchema = config_schema(RefineConfig)
 
 
 @dataclass
@@ -57,6 +61,9 @@ class TrainPlannerConfig:
     """Steering during training episodes (default: straight, as the paper). The
     :data:`~jaxloco.learning.training.STEERING` preset is ``turns.max_deg=20
     actor_critic.max_iterations=800``."""
+    refine: RefineSchema = field(default_factory=RefineSchema)
+    """Refinement of the mean policy through the differentiable planner after Algorithm 1
+    (``refine.iterations=0``: Algorithm 1 alone, as the paper)."""
     resume_from: str = ""
     """A checkpoint folder to continue training from (its config is used)."""
     progress: bool = True
@@ -74,6 +81,7 @@ def build_config(cfg: TrainPlannerConfig) -> TrainConfig:
         planner=to_params(PSPParams, cfg.planner),
         evaluation=to_params(EvalConfig, cfg.evaluation),
         turns=to_params(EpisodeTurns, cfg.turns),
+        refine=to_params(RefineConfig, cfg.refine),
     )
 
 
@@ -91,29 +99,54 @@ def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
         "stop_reason": result.stop_reason,
         "best_basin": result.best_basin,
         "best_steering_basin": result.best_steering_basin,
+        "actor_critic_basin": result.actor_critic_basin,
         "compile_seconds": result.compile_seconds,
         "train_seconds": result.train_seconds,
         "eval_seconds": result.eval_seconds,
         "fingerprint": params_fingerprint(result.best_params),
     }
+    ref = result.refinement
+    if ref is not None:
+        info["refine"] = {
+            "iterations": len(ref.history),
+            "compile_seconds": ref.compile_seconds,
+            "train_seconds": ref.train_seconds,
+            "eval_seconds": ref.eval_seconds,
+            "start": ref.start,
+            "best": ref.best,
+        }
     save_checkpoint(out_dir / "checkpoint", result.best_params, config, info, result.state)
     write_json(out_dir / "history.json", {"info": info, "history": result.history})
     fig = plot_learning_curve(result.history, title="RL-PSP training")
     fig.savefig(out_dir / "learning_curve.png", dpi=cfg.dpi)
     log.info(
-        "stopped after %d iterations (%s); kept survival basin %s, steering basin %s; "
-        "compile %.1f s, training %.1f s, evaluation %.1f s",
+        "Algorithm 1 stopped after %d iterations (%s); survival basin %s; compile %.1f s, "
+        "training %.1f s, evaluation %.1f s",
         info["iteration"],
         result.stop_reason,
-        f"{result.best_basin:.3f}" if result.best_basin is not None else "not evaluated",
-        f"{result.best_steering_basin:.3f}"
-        if result.best_steering_basin is not None
-        else "not evaluated",
+        _fmt(result.actor_critic_basin),
         result.compile_seconds,
         result.train_seconds,
         result.eval_seconds,
     )
+    if ref is not None:
+        log.info(
+            "refinement: %d steps; compile %.1f s, steps %.1f s, evaluation %.1f s",
+            len(ref.history),
+            ref.compile_seconds,
+            ref.train_seconds,
+            ref.eval_seconds,
+        )
+    log.info(
+        "kept survival basin %s, steering basin %s",
+        _fmt(result.best_basin),
+        _fmt(result.best_steering_basin),
+    )
     return info
+
+
+def _fmt(basin):
+    return f"{basin:.3f}" if basin is not None else "not evaluated"
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="train_planner")

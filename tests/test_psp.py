@@ -18,6 +18,8 @@ from jaxloco.planner import (
     describe_reason,
     plan_from_com_state,
     plan_step,
+    safety_margins,
+    smooth_reward,
 )
 
 P = PSPParams()
@@ -149,6 +151,37 @@ def test_infeasible_inputs_are_flagged_with_finite_fields(state, action, reason)
     if reason in (Reason.INVALID_INPUT,):
         assert int(plan.reason) == reason.value
         assert not any(bool(v) for v in jax.tree.leaves(plan.valid))
+
+
+def test_safety_margins_agree_with_the_terminal_bits_and_smooth_reward_with_eq3():
+    rng = np.random.default_rng(3)
+    states = rng.uniform(STATE_LOW, STATE_HIGH, (4000, 3))
+    actions = rng.uniform(ACTION_LOW, ACTION_HIGH, (4000, 3))
+    plan = plan_step(states, actions, P)
+    solvable = np.asarray(plan.valid.next_state) & (
+        (np.asarray(plan.reason) & int(INFEASIBLE)) == 0
+    )
+    margins = np.asarray(safety_margins(plan, P))
+    assert margins.shape == (4000, 6)
+    safety_bits = int(
+        Reason.SWITCH_TOO_SOON
+        | Reason.APEX_TOO_SOON
+        | Reason.P_Y_OUT_OF_RANGE
+        | Reason.STRIDE_OUT_OF_RANGE
+    )
+    unsafe = (np.asarray(plan.reason) & safety_bits) != 0
+    # Among solvable steps: a step is flagged unsafe exactly when some margin is <= 0 (the
+    # stride bounds are inclusive, so a margin of exactly 0 there is still safe; random
+    # draws never hit it).
+    assert (
+        solvable.sum() > 1000 and unsafe[solvable].sum() > 100 and (~unsafe[solvable]).sum() > 100
+    )
+    np.testing.assert_array_equal(unsafe[solvable], (margins[solvable] <= 0).any(axis=1))
+    reward = np.asarray(smooth_reward(plan, actions, P))
+    safe = solvable & ~unsafe
+    np.testing.assert_allclose(reward[safe], np.asarray(plan.reward)[safe], rtol=1e-12)
+    # Where Eq. 3's reward switches to the terminal one, the smooth reward does not.
+    assert np.all(reward[unsafe & solvable] != P.terminal_reward)
 
 
 def test_describe_reason():

@@ -16,6 +16,7 @@ from jaxloco.learning import (
     EvalConfig,
     LearnedPlanner,
     RBFGrid,
+    RefineConfig,
     TrainConfig,
     init_train_state,
     load_checkpoint_config,
@@ -35,6 +36,7 @@ SMALL = TrainConfig(
         FAST, episodes_per_iteration=64, max_episode_steps=4, max_iterations=5
     ),
     evaluation=EvalConfig(every=2, num_states=128, num_steps=10),
+    refine=RefineConfig(iterations=0),  # Algorithm 1 alone (refinement: test_refine.py)
 )
 
 
@@ -152,6 +154,9 @@ def test_train_planner_cli_ci_sized(tmp_path):
             "evaluation.every=2",
             "evaluation.num_states=64",
             "evaluation.num_steps=5",
+            "refine.iterations=2",
+            "refine.batch=8",
+            "refine.horizon=2",
             "progress=false",
             "dpi=50",
         ],
@@ -161,7 +166,9 @@ def test_train_planner_cli_ci_sized(tmp_path):
     run = tmp_path / "run"
     assert (run / "learning_curve.png").stat().st_size > 0
     history = json.loads((run / "history.json").read_text())
-    assert len(history["history"]) == 3 and history["info"]["iteration"] == 3
+    assert len(history["history"]) == 5 and history["info"]["iteration"] == 3
+    assert history["info"]["refine"]["iterations"] == 2
+    assert history["history"][-1]["stage"] == "refine"
     planner = load_planner(run / "checkpoint")
     assert planner.mean_action(jnp.asarray(P.nominal_state)).shape == (3,)
 

@@ -14,6 +14,7 @@ from jaxloco.learning.checkpoint import (
 )
 from jaxloco.learning.evaluation import mean_policy, steps_survived, survival_basin, value_function
 from jaxloco.learning.rbf import RBFGrid
+from jaxloco.learning.refine import RefineConfig, RefineResult, refine
 from jaxloco.learning.starts import EpisodeTurns, StartStates
 from jaxloco.learning.training import FAST, STEERING, EvalConfig, TrainConfig, TrainResult, train
 
@@ -24,6 +25,8 @@ __all__ = [
     "EvalConfig",
     "LearnedPlanner",
     "RBFGrid",
+    "RefineConfig",
+    "RefineResult",
     "STEERING",
     "StartStates",
     "TrainConfig",
@@ -34,6 +37,7 @@ __all__ = [
     "load_planner",
     "make_train_iteration",
     "mean_policy",
+    "refine",
     "save_checkpoint",
     "steps_survived",
     "survival_basin",

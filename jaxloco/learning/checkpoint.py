@@ -31,6 +31,7 @@ from jaxloco.learning.actor_critic import (
     TrainState,
     init_train_state,
 )
+from jaxloco.learning.refine import RefineConfig
 from jaxloco.learning.starts import EpisodeTurns, StartStates
 from jaxloco.learning.training import EvalConfig, TrainConfig
 from jaxloco.planner import PSPParams
@@ -75,6 +76,8 @@ def load_checkpoint_config(path) -> tuple[TrainConfig, dict]:
         evaluation=to_params(EvalConfig, c["evaluation"]),
         # Checkpoints from before steering training walked straight.
         turns=to_params(EpisodeTurns, c.get("turns", {})),
+        # Checkpoints from before refinement were Algorithm 1 alone.
+        refine=to_params(RefineConfig, c.get("refine", {"iterations": 0})),
     )
     return config, meta.get("info", {})
 

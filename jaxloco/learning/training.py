@@ -31,6 +31,7 @@ from jaxloco.learning.actor_critic import (
     make_train_iteration,
 )
 from jaxloco.learning.evaluation import mean_policy, survival_basin
+from jaxloco.learning.refine import RefineConfig, RefineResult, refine
 from jaxloco.learning.starts import EpisodeTurns, StartStates
 from jaxloco.planner import PSPParams, turn_schedule
 
@@ -103,6 +104,10 @@ class TrainConfig:
     evaluation: EvalConfig = EvalConfig()
     turns: EpisodeTurns = EpisodeTurns()
     """Straight episodes, as the paper trains; :data:`STEERING` adds turning ones."""
+    refine: RefineConfig = RefineConfig()
+    """After Algorithm 1, the mean policy is refined through the differentiable planner
+    (:mod:`jaxloco.learning.refine`; not in the paper). ``RefineConfig(iterations=0)``:
+    Algorithm 1 alone."""
 
 
 @dataclasses.dataclass
@@ -110,23 +115,33 @@ class TrainResult:
     state: TrainState
     """The final training state."""
     best_params: object
-    """The weights with the best evaluated basin (the final ones if never evaluated)."""
+    """The weights with the best evaluated basin (the final ones if never evaluated),
+    after refinement when ``config.refine.iterations > 0``."""
     best_basin: float | None
     """Survival basin of the kept weights (None if never evaluated)."""
     best_steering_basin: float | None
     """Their steering basin (training with turns only)."""
     history: list[dict]
+    """One row per iteration: Algorithm 1's, then refinement's (``stage = "refine"``)."""
     compile_seconds: float
     train_seconds: float
-    """Wall time of the iterations after the first (compile excluded), evaluation excluded."""
+    """Algorithm 1: wall time of the iterations after the first (compile excluded),
+    evaluation excluded."""
     eval_seconds: float
     stop_reason: str
+    """Why Algorithm 1 stopped."""
+    actor_critic_basin: float | None = None
+    """The survival basin Algorithm 1 alone reached (before refinement)."""
+    refinement: RefineResult | None = None
+    """The refinement stage (its timings, history, start and kept evaluations)."""
 
 
 def train(config: TrainConfig = TrainConfig(), progress: bool = True, state=None) -> TrainResult:
-    """Run Algorithm 1 batched until every mean spread is below the target, or the budget.
+    """Run Algorithm 1 batched until every mean spread is below the target, or the budget;
+    then refine the kept policy (``config.refine``).
 
-    ``state``: resume from this :class:`TrainState` (e.g. a loaded checkpoint).
+    ``state``: resume Algorithm 1 from this :class:`TrainState` (e.g. a loaded checkpoint);
+    the refinement, deterministic given its start, then runs again from the kept weights.
     """
     ac, grid, psp = config.actor_critic, config.grid, config.planner
     iteration = make_train_iteration(ac, grid, psp, config.starts, config.turns)
@@ -212,6 +227,30 @@ def train(config: TrainConfig = TrainConfig(), progress: bool = True, state=None
     bar.close()
     if best_basin is None:
         best_params = state.params
+    actor_critic_basin, refinement = best_basin, None
+    if config.refine.iterations > 0:
+
+        def basins(params):
+            basin, steer = (float(x) for x in evaluate(params))
+            return {"basin": basin, **({"steering_basin": steer} if steering else {})}
+
+        refinement = refine(
+            best_params,
+            grid,
+            psp,
+            config.refine,
+            config.starts,
+            evaluate=basins if config.evaluation.every else None,
+            every=config.evaluation.every,
+            progress=progress,
+            first_iteration=int(state.iteration),
+            wall_offset=time.perf_counter() - t_run,
+        )
+        best_params = refinement.best_params
+        history.extend(refinement.history)
+        if refinement.best is not None:
+            best_basin = refinement.best["basin"]
+            best_steering = refinement.best.get("steering_basin")
     return TrainResult(
         state=state,
         best_params=best_params,
@@ -222,6 +261,8 @@ def train(config: TrainConfig = TrainConfig(), progress: bool = True, state=None
         train_seconds=train_s,
         eval_seconds=eval_s,
         stop_reason=stop_reason if start_iteration < ac.max_iterations else "already done",
+        actor_critic_basin=actor_critic_basin,
+        refinement=refinement,
     )
 
 

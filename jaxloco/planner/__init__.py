@@ -5,6 +5,7 @@ from jaxloco.planner.lookahead import action_grid, make_lookahead_policy, nomina
 from jaxloco.planner.multistep import ComTrajectory, FootstepPlan, plan_steps, sample_com_trajectory
 from jaxloco.planner.psp import (
     INFEASIBLE,
+    SAFETY_MARGIN_NAMES,
     PSPParams,
     Reason,
     StepPlan,
@@ -12,11 +13,14 @@ from jaxloco.planner.psp import (
     describe_reason,
     plan_from_com_state,
     plan_step,
+    safety_margins,
+    smooth_reward,
 )
 from jaxloco.planner.steering import turn_schedule
 
 __all__ = [
     "INFEASIBLE",
+    "SAFETY_MARGIN_NAMES",
     "ComTrajectory",
     "FootstepPlan",
     "PSPParams",
@@ -31,7 +35,9 @@ __all__ = [
     "plan_from_com_state",
     "plan_step",
     "plan_steps",
+    "safety_margins",
     "sample_com_trajectory",
+    "smooth_reward",
     "steering",
     "turn_schedule",
 ]

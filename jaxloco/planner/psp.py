@@ -344,11 +344,7 @@ def _plan(x0, xd0, y0, yd0, action, params: PSPParams) -> StepPlan:
     terminal = reason != 0
 
     # Eq. 3, on the next apex (its velocities are the action's, mirrored laterally).
-    reward = -(
-        params.reward_weight_xd * (params.xd_apex_nominal - v_next) ** 2
-        + params.reward_weight_p_y * (params.p_y_nominal - p_y) ** 2
-        + params.reward_weight_yd * yd_next**2
-    )
+    reward = _eq3_reward(v_next, p_y, yd_next, params)
     reward = jnp.where(terminal, params.terminal_reward, reward)
 
     return StepPlan(
@@ -371,6 +367,42 @@ def _plan(x0, xd0, y0, yd0, action, params: PSPParams) -> StepPlan:
             p_y=geometry_ok,
             next_state=geometry_ok,
         ),
+    )
+
+
+def _eq3_reward(xd_next, p_y, yd_next, params: PSPParams):
+    return -(
+        params.reward_weight_xd * (params.xd_apex_nominal - xd_next) ** 2
+        + params.reward_weight_p_y * (params.p_y_nominal - p_y) ** 2
+        + params.reward_weight_yd * yd_next**2
+    )
+
+
+def smooth_reward(plan: StepPlan, action, params: PSPParams = PSPParams()) -> jax.Array:
+    """Eq. 3 without its terminal switch: smooth in the action, for gradient-based planning
+    and learning (``plan.reward`` jumps to ``terminal_reward`` on unsafe steps)."""
+    action = jnp.asarray(action)
+    return _eq3_reward(action[..., 1], plan.p_y, action[..., 2], params)
+
+
+SAFETY_MARGIN_NAMES = ("t_switch", "t_apex", "p_y_low", "p_y_high", "stride_low", "stride_high")
+
+
+def safety_margins(plan: StepPlan, params: PSPParams = PSPParams()) -> jax.Array:
+    """``(..., 6)`` signed distances inside Eq. 4's bounds and the stride bounds (s, m), in
+    the order of :data:`SAFETY_MARGIN_NAMES`: all positive for a safe step. Meaningful only
+    where ``plan.valid.next_state`` (elsewhere the plan's fields are placeholders)."""
+    stride = plan.stride
+    return jnp.stack(
+        [
+            plan.t_switch - params.t_switch_min,
+            plan.t_apex - params.t_apex_min,
+            plan.p_y - params.p_y_min,
+            params.p_y_max - plan.p_y,
+            stride - params.stride_min,
+            params.stride_max - stride,
+        ],
+        axis=-1,
     )
 
 

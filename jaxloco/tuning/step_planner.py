@@ -30,7 +30,7 @@ import numpy as np
 import optax
 
 from jaxloco.planner.lookahead import action_grid
-from jaxloco.planner.psp import PSPParams, plan_step
+from jaxloco.planner.psp import PSPParams, plan_step, safety_margins, smooth_reward
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,26 +72,10 @@ class GradientPlannerParams:
 def step_objective(state, action, psp: PSPParams, gp: GradientPlannerParams):
     """Smooth score of one step (higher is better) and its plan."""
     plan = plan_step(state, action, psp)
-    v_next, yd_next = action[..., 1], action[..., 2]
-    reward = -(
-        psp.reward_weight_xd * (psp.xd_apex_nominal - v_next) ** 2
-        + psp.reward_weight_p_y * (psp.p_y_nominal - plan.p_y) ** 2
-        + psp.reward_weight_yd * yd_next**2
-    )
+    reward = smooth_reward(plan, action, psp)
     m, k = gp.margin, gp.barrier_sharpness
-
-    def below(x, bound):  # penalise x < bound + margin
-        return jax.nn.softplus(k * (bound + m - x)) / k
-
-    stride = plan.stride
-    barrier = (
-        below(plan.t_switch, psp.t_switch_min)
-        + below(plan.t_apex, psp.t_apex_min)
-        + below(plan.p_y, psp.p_y_min)
-        + below(-plan.p_y, -psp.p_y_max)
-        + below(stride, psp.stride_min)
-        + below(-stride, -psp.stride_max)
-    )
+    # Penalise every margin below gp.margin.
+    barrier = jnp.sum(jax.nn.softplus(k * (m - safety_margins(plan, psp))) / k, axis=-1)
     feasible = plan.valid.next_state
     score = reward - gp.barrier_weight * barrier - jnp.where(feasible, 0.0, gp.infeasible_penalty)
     return score, plan

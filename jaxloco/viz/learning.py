@@ -7,9 +7,14 @@ from matplotlib.figure import Figure
 
 
 def plot_learning_curve(history: list[dict], title: str = "RL-PSP training") -> Figure:
-    """Return, survival, spread and survival basin against iterations and wall time."""
+    """Return, survival, spread and survival basin against iterations and wall time.
+
+    Rows of the refinement stage (``stage == "refine"``) only carry the basin; a dashed
+    line marks where refinement starts.
+    """
     it = np.array([h["iteration"] for h in history])
     wall = np.array([h["wall_s"] for h in history])
+    refine_rows = [i for i, h in enumerate(history) if h.get("stage") == "refine"]
     fig = Figure(figsize=(12, 6.5), constrained_layout=True)
     axes = fig.subplots(2, 4)
     series = [
@@ -22,19 +27,25 @@ def plot_learning_curve(history: list[dict], title: str = "RL-PSP training") -> 
         for row, (x, xlabel) in enumerate(((it, "iteration"), (wall, "wall time (s)"))):
             ax = axes[row, col]
             if key == "spread":
-                values = np.array([h["spread"] for h in history])
-                for k, name in enumerate(("p_x", "xd_next", "yd_next")):
-                    ax.plot(x, values[:, k], label=name)
-                ax.legend(fontsize=7)
+                pts = [(xv, h["spread"]) for xv, h in zip(x, history, strict=True) if "spread" in h]
+                if pts:
+                    xs, values = np.array([p[0] for p in pts]), np.array([p[1] for p in pts])
+                    for k, name in enumerate(("p_x", "xd_next", "yd_next")):
+                        ax.plot(xs, values[:, k], label=name)
+                    ax.legend(fontsize=7)
             elif key == "basin":
                 for name, label in (("basin", "straight"), ("steering_basin", "steering")):
                     pts = [(xv, h[name]) for xv, h in zip(x, history, strict=True) if name in h]
                     if pts:
                         ax.plot(*zip(*pts, strict=True), "o-", ms=3, label=label)
-                if any("steering_basin" in h for h in history):
+                if refine_rows:
+                    ax.axvline(x[refine_rows[0]], color="0.4", ls="--", lw=1, label="refinement")
+                if refine_rows or any("steering_basin" in h for h in history):
                     ax.legend(fontsize=7)
             else:
-                ax.plot(x, [h[key] for h in history])
+                pts = [(xv, h[key]) for xv, h in zip(x, history, strict=True) if key in h]
+                if pts:
+                    ax.plot(*zip(*pts, strict=True))
             ax.set(xlabel=xlabel, title=label if row == 0 else None)
             ax.grid(alpha=0.3)
     fig.suptitle(title)

@@ -1,0 +1,164 @@
+"""Refining the mean policy through the differentiable planner (jaxloco.learning.refine)."""
+
+import dataclasses
+import json
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+from jax.test_util import check_grads
+
+from jaxloco.learning import (
+    FAST,
+    EvalConfig,
+    RefineConfig,
+    TrainConfig,
+    load_checkpoint_config,
+    load_planner,
+    mean_policy,
+    save_checkpoint,
+    survival_basin,
+    train,
+)
+from jaxloco.learning import policy as pol
+from jaxloco.learning.refine import (
+    log_soft_safety,
+    make_refine_step,
+    refine,
+    refined_params,
+    rollout_objective,
+)
+from jaxloco.learning.starts import StartStates, uniform_states
+from jaxloco.planner import PSPParams, plan_step
+
+P = PSPParams()
+
+
+def test_soft_safety_is_near_one_when_safe_and_small_when_not():
+    cfg = RefineConfig()
+    nominal = jnp.asarray(P.nominal_state)
+    comfortable = plan_step(nominal, jnp.asarray([0.3, 0.2, 0.0]), P)
+    too_short = plan_step(nominal, jnp.asarray([0.05, 0.2, 0.1]), P)  # stride below 0.2 m
+    unsolvable = plan_step(nominal, jnp.asarray([0.3, 0.0, 0.0]), P)  # never reaches an apex
+    assert not bool(comfortable.terminal) and bool(too_short.terminal)
+    assert float(log_soft_safety(comfortable, P, cfg)) > -0.05
+    assert float(log_soft_safety(too_short, P, cfg)) < -3.0
+    assert not bool(unsolvable.valid.next_state)
+    assert float(log_soft_safety(unsolvable, P, cfg)) == cfg.infeasible_log_safety
+
+
+def test_refinement_gradient_matches_finite_differences():
+    planner = load_planner()
+    params = jax.tree.map(lambda x: x.astype(jnp.float64), planner.params)
+    cfg = RefineConfig(batch=6, horizon=3)
+    key = jax.random.key(7)
+
+    def objective(table, bias):
+        p = params.replace(
+            table=params.table.at[..., pol.MEAN].set(table),
+            bias=params.bias.at[..., pol.MEAN].set(bias),
+        )
+        policy = mean_policy(p, planner.grid, P)
+        s0 = uniform_states(key, cfg.batch, StartStates())
+        return jnp.mean(jax.vmap(lambda s: rollout_objective(policy, s, P, cfg))(s0))
+
+    args = (params.table[..., pol.MEAN], params.bias[pol.MEAN])
+    assert np.isfinite(float(objective(*args)))
+    check_grads(objective, args, order=1, modes=["rev"], eps=1e-6, atol=1e-5, rtol=1e-4)
+
+
+def test_refinement_raises_the_survival_basin_and_keeps_the_best():
+    planner = load_planner()
+    key = jax.random.key(11)
+
+    @jax.jit
+    def basin(params):
+        policy = mean_policy(params, planner.grid, P)
+        return survival_basin(policy, P, key, 1024, 50)[0]
+
+    cfg = RefineConfig(iterations=20, batch=512, horizon=6)
+    result = refine(
+        planner.params,
+        planner.grid,
+        P,
+        cfg,
+        evaluate=lambda p: {"basin": basin(p)},
+        every=10,
+        progress=False,
+        first_iteration=600,
+        wall_offset=5.0,
+    )
+    assert [h["iteration"] for h in result.history] == list(range(601, 621))
+    assert all(h["stage"] == "refine" and h["wall_s"] > 5.0 for h in result.history)
+    evaluated = [h["basin"] for h in result.history if "basin" in h]
+    assert len(evaluated) == 2
+    assert result.best["basin"] == max([result.start["basin"], *evaluated])
+    assert float(basin(result.best_params)) == pytest.approx(result.best["basin"])
+    # Measured: 0.41 -> 0.46 on this draw; the mean policy must gain at least 3 points.
+    assert result.best["basin"] > result.start["basin"] + 0.03, (result.start, evaluated)
+    # Only the mean channels moved.
+    for channel in (pol.VALUE, pol.LOG_SPREAD):
+        np.testing.assert_array_equal(
+            result.best_params.table[..., channel], planner.params.table[..., channel]
+        )
+        np.testing.assert_array_equal(
+            result.best_params.bias[channel], planner.params.bias[channel]
+        )
+
+
+def test_refine_step_is_reproducible_for_a_seed():
+    planner = load_planner()
+    cfg = RefineConfig(batch=32, horizon=2)
+    (w, s), step = make_refine_step(planner.params, planner.grid, P, cfg)
+    key = jax.random.key(3)
+    a = step(w, s, key)
+    b = step(w, s, key)
+    np.testing.assert_array_equal(a[0][0], b[0][0])
+    assert float(a[2]) == float(b[2])
+    moved = refined_params(planner.params, a[0])
+    assert not np.array_equal(moved.table[..., pol.MEAN], planner.params.table[..., pol.MEAN])
+
+
+def test_training_refines_after_algorithm_1_and_checkpoints_record_it(tmp_path):
+    small = TrainConfig(
+        actor_critic=dataclasses.replace(
+            FAST, episodes_per_iteration=64, max_episode_steps=4, max_iterations=4
+        ),
+        evaluation=EvalConfig(every=2, num_states=128, num_steps=10),
+        refine=RefineConfig(iterations=3, batch=32, horizon=2),
+    )
+    result = train(small, progress=False)
+    assert [h["iteration"] for h in result.history] == [1, 2, 3, 4, 5, 6, 7]
+    assert [h.get("stage") for h in result.history[4:]] == ["refine"] * 3
+    assert result.refinement is not None and result.actor_critic_basin is not None
+    assert result.refinement.start["basin"] == result.actor_critic_basin
+    assert result.best_basin >= result.actor_critic_basin
+    assert int(result.state.iteration) == 4  # the Algorithm 1 state, to resume from
+    path = save_checkpoint(tmp_path / "ck", result.best_params, small)
+    assert load_checkpoint_config(path)[0] == small
+    # Checkpoints written before refinement existed were Algorithm 1 alone.
+    meta = json.loads((path / "config.json").read_text())
+    del meta["config"]["refine"]
+    (path / "config.json").write_text(json.dumps(meta))
+    assert load_checkpoint_config(path)[0].refine.iterations == 0
+    off = train(dataclasses.replace(small, refine=RefineConfig(iterations=0)), progress=False)
+    assert off.refinement is None and off.best_basin == off.actor_critic_basin
+    assert len(off.history) == 4
+
+
+@pytest.mark.parametrize(
+    "change,match",
+    [
+        ({"iterations": -1}, r"RefineConfig.iterations must be an int >= 0"),
+        ({"batch": 0}, r"RefineConfig.batch must be an int >= 1"),
+        ({"horizon": 2.5}, r"RefineConfig.horizon must be an int >= 1"),
+        ({"learning_rate": 0.0}, r"RefineConfig.learning_rate must be > 0"),
+        ({"margin": -0.01}, r"RefineConfig.margin must be >= 0"),
+        ({"discount": 1.5}, r"RefineConfig.discount must be in \[0, 1\]"),
+        ({"infeasible_log_safety": 1.0}, r"RefineConfig.infeasible_log_safety must be <= 0"),
+    ],
+)
+def test_refine_config_validation_names_the_field(change, match):
+    with pytest.raises(ValueError, match=match):
+        RefineConfig(**change)
