@@ -137,10 +137,11 @@ def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
             ref.train_seconds,
             ref.eval_seconds,
         )
+    steering = result.best_steering_basin
     log.info(
-        "kept survival basin %s, steering basin %s",
+        "kept survival basin %s%s",
         _fmt(result.best_basin),
-        _fmt(result.best_steering_basin),
+        f", steering basin {_fmt(steering)}" if steering is not None else "",
     )
     return info
 

@@ -22,6 +22,7 @@ from jaxloco.learning import (
     train,
 )
 from jaxloco.learning import policy as pol
+from jaxloco.learning.actor_critic import init_train_state
 from jaxloco.learning.refine import (
     log_soft_safety,
     make_refine_step,
@@ -70,6 +71,8 @@ def test_refinement_gradient_matches_finite_differences():
 
 def test_refinement_raises_the_survival_basin_and_keeps_the_best():
     planner = load_planner()
+    # Algorithm 1's starting weights: every mean at the nominal action (0.3, 0.2, 0).
+    start = init_train_state(FAST, planner.grid).params
     key = jax.random.key(11)
 
     @jax.jit
@@ -77,9 +80,9 @@ def test_refinement_raises_the_survival_basin_and_keeps_the_best():
         policy = mean_policy(params, planner.grid, P)
         return survival_basin(policy, P, key, 1024, 50)[0]
 
-    cfg = RefineConfig(iterations=20, batch=512, horizon=6)
+    cfg = RefineConfig(iterations=20, batch=512, horizon=4)
     result = refine(
-        planner.params,
+        start,
         planner.grid,
         P,
         cfg,
@@ -95,16 +98,14 @@ def test_refinement_raises_the_survival_basin_and_keeps_the_best():
     assert len(evaluated) == 2
     assert result.best["basin"] == max([result.start["basin"], *evaluated])
     assert float(basin(result.best_params)) == pytest.approx(result.best["basin"])
-    # Measured: 0.41 -> 0.46 on this draw; the mean policy must gain at least 3 points.
+    # Measured: 0.23 -> 0.38, 0.44 on this draw.
     assert result.best["basin"] > result.start["basin"] + 0.03, (result.start, evaluated)
     # Only the mean channels moved.
     for channel in (pol.VALUE, pol.LOG_SPREAD):
         np.testing.assert_array_equal(
-            result.best_params.table[..., channel], planner.params.table[..., channel]
+            result.best_params.table[..., channel], start.table[..., channel]
         )
-        np.testing.assert_array_equal(
-            result.best_params.bias[channel], planner.params.bias[channel]
-        )
+        np.testing.assert_array_equal(result.best_params.bias[channel], start.bias[channel])
 
 
 def test_refine_step_is_reproducible_for_a_seed():

@@ -34,10 +34,10 @@ def plot_learning_curve(history: list[dict], title: str = "RL-PSP training") -> 
                         ax.plot(xs, values[:, k], label=name)
                     ax.legend(fontsize=7)
             elif key == "basin":
-                for name, label in (("basin", "straight"), ("steering_basin", "steering")):
+                for name, legend in (("basin", "straight"), ("steering_basin", "steering")):
                     pts = [(xv, h[name]) for xv, h in zip(x, history, strict=True) if name in h]
                     if pts:
-                        ax.plot(*zip(*pts, strict=True), "o-", ms=3, label=label)
+                        ax.plot(*zip(*pts, strict=True), "o-", ms=3, label=legend)
                 if refine_rows:
                     ax.axvline(x[refine_rows[0]], color="0.4", ls="--", lw=1, label="refinement")
                 if refine_rows or any("steering_basin" in h for h in history):
