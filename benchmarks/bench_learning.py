@@ -79,8 +79,9 @@ def run_training(name, config):
         train_s=sum(stage.train_seconds for stage in stages),
         eval_s=sum(stage.eval_seconds for stage in stages),
         refine_step_ms=1e3 * ref.train_seconds / max(len(ref.history) - 1, 1) if ref else None,
-        transitions_per_s=env_steps / max(result.train_seconds, 1e-9),
-        live_transitions_per_s=lengths / max(result.train_seconds, 1e-9),
+        # Algorithm 1's rates; None when it ran only its compiling first iteration.
+        transitions_per_s=env_steps / result.train_seconds if result.train_seconds else None,
+        live_transitions_per_s=lengths / result.train_seconds if result.train_seconds else None,
         stop_reason=result.stop_reason,
         fingerprint=params_fingerprint(result.best_params),
     )
@@ -145,6 +146,11 @@ def main():
         )
         rows.append(default_row)
         rows.append(run_training("FAST preset, Algorithm 1 alone", fast)[0])
+        # Refinement from the untrained weights (every mean at the nominal action).
+        untrained = dataclasses.replace(
+            default, actor_critic=dataclasses.replace(FAST, max_iterations=1)
+        )
+        rows.append(run_training("refinement alone (after 1 Algorithm 1 iteration)", untrained)[0])
         rows.append(run_training("paper's Algorithm 1 config, same budget (baseline)", paper)[0])
         again, _ = run_training("default again (same seed)", default)
         reproducible = again["fingerprint"] == default_row["fingerprint"]
