@@ -39,6 +39,7 @@ import time
 import jax
 import jax.numpy as jnp
 import optax
+from tqdm.auto import tqdm
 
 from jaxloco.learning import policy as pol
 from jaxloco.learning.evaluation import mean_policy
@@ -217,7 +218,7 @@ def refine(
     if evaluate is not None:
         best, best_score = evaluated(params)
     start = best
-    bar = _progress_bar(cfg.iterations, progress)
+    bar = tqdm(total=cfg.iterations, desc="refine", unit="it", disable=not progress)
     for i in range(cfg.iterations):
         t0 = time.perf_counter()
         weights, opt_state, value = step(weights, opt_state, jax.random.fold_in(base_key, i))
@@ -261,9 +262,3 @@ def refine(
         train_seconds=train_s,
         eval_seconds=eval_s,
     )
-
-
-def _progress_bar(total: int, enabled: bool):
-    from tqdm.auto import tqdm
-
-    return tqdm(total=total, desc="refine", unit="it", disable=not enabled, leave=True)
