@@ -9,7 +9,7 @@ A checkpoint is a folder:
 - ``train_state.msgpack`` (optional): the full training state, to resume training.
 
 :func:`load_planner` turns a checkpoint into a :class:`LearnedPlanner`; with no path it
-loads the default policy shipped in ``assets/policies/rl_psp``.
+loads a policy shipped in ``assets/policies/`` (:data:`SHIPPED_POLICIES`).
 """
 
 from __future__ import annotations
@@ -38,6 +38,12 @@ from jaxloco.planner import PSPParams
 from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
 
 DEFAULT_POLICY = "policies/rl_psp"
+SHIPPED_POLICIES = {"default": DEFAULT_POLICY, "refined": "policies/rl_psp_refined"}
+"""Policies in ``assets/``. ``default``: Algorithm 1 alone (``jaxloco train-planner
+refine.iterations=0``), survival basin 0.389 on policy-eval's draw; the walking controller
+uses it. ``refined``: the same weights refined through the planner (``jaxloco
+train-planner``), basin 0.503 on that draw, but on the full robot it falls on Fig. 11's
+steering walk after 4 steps, which the default walks through (README)."""
 FORMAT_VERSION = 1
 
 
@@ -154,9 +160,16 @@ def _batched(fn, state):
     return out.reshape(*state.shape[:-1], *out.shape[1:])
 
 
-def load_planner(path=None) -> LearnedPlanner:
-    """Load a trained planner; ``path=None`` loads the default one shipped with jaxloco."""
-    path = Path(path) if path is not None else assets_dir() / DEFAULT_POLICY
+def load_planner(path=None, shipped: str = "default") -> LearnedPlanner:
+    """Load a trained planner from ``path``; with no path, the policy shipped with jaxloco
+    named ``shipped`` (a key of :data:`SHIPPED_POLICIES`: ``"default"`` or ``"refined"``)."""
+    if path is None:
+        if shipped not in SHIPPED_POLICIES:
+            raise ValueError(
+                f"load_planner: shipped must be one of {sorted(SHIPPED_POLICIES)}; got {shipped!r}"
+            )
+        path = assets_dir() / SHIPPED_POLICIES[shipped]
+    path = Path(path)
     if not (path / "weights.npz").exists():
         raise FileNotFoundError(
             f"no planner checkpoint at {path} (expected weights.npz and config.json); "

@@ -105,8 +105,7 @@ class GaitParams:
     (``init_gait(replan_gamma=...)``), so it can be traced and tuned by gradient."""
     max_apex_speed: float = 1.0
     """Cap on the next apex velocity the step policy asks for (m/s): sets the walking speed
-    below the policy's own (the action box tops out at 0.37; the shipped policy asks for
-    about 0.2 on the nominal gait, its Algorithm 1 predecessor for 0.37).
+    below the policy's own (the shipped policy asks for 0.37, the top of its action box).
     Per robot it is data (``init_gait(apex_speed=...)``), so one compiled controller
     serves several speeds."""
     replan_min_remaining: float = 0.08
