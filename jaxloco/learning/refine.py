@@ -145,17 +145,21 @@ def make_refine_step(
     if cfg.clip_norm > 0:
         optimizer = optax.chain(optax.clip_by_global_norm(cfg.clip_norm), optimizer)
 
-    def objective(weights, key):
-        policy = mean_policy(_with_mean_weights(params, weights), grid, psp)
-        s0 = uniform_states(key, cfg.batch, starts).astype(params.table.dtype)
+    def objective(weights, base, key):
+        policy = mean_policy(_with_mean_weights(base, weights), grid, psp)
+        s0 = uniform_states(key, cfg.batch, starts).astype(base.table.dtype)
         return jnp.mean(jax.vmap(lambda s: rollout_objective(policy, s, psp, cfg))(s0))
 
+    # The other channels come in as an argument, not as constants baked into the program.
     @jax.jit
-    def step(weights, opt_state, key):
-        value, grad = jax.value_and_grad(objective)(weights, key)
+    def jitted_step(weights, opt_state, base, key):
+        value, grad = jax.value_and_grad(objective)(weights, base, key)
         # Ascent: optax minimises.
         updates, opt_state = optimizer.update(jax.tree.map(jnp.negative, grad), opt_state)
         return optax.apply_updates(weights, updates), opt_state, value
+
+    def step(weights, opt_state, key):
+        return jitted_step(weights, opt_state, params, key)
 
     weights = _mean_weights(params)
     return (weights, optimizer.init(weights)), step
