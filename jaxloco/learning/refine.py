@@ -58,8 +58,9 @@ class RefineConfig:
     horizon: int = 4
     """Steps each start state is rolled through the planner. Measured from the shipped
     Algorithm 1 policy (300 steps, seeds 0 and 1; basin on the training evaluator's draw /
-    an independent one): 4 steps 0.514 / 0.504-0.505 at 0.31 s a step; 8 steps 0.510-0.511
-    / 0.498-0.501 at 0.48 s, and one 8-step run collapsed to 0 after 425 steps."""
+    an independent one; step times with another job on the 2 cores): 4 steps 0.514 /
+    0.504-0.505 at 0.31 s a step (0.19-0.22 s alone); 8 steps 0.510-0.511 / 0.498-0.501 at
+    0.48 s, and one 8-step run collapsed to 0 after 425 steps."""
     learning_rate: float = 1e-3
     clip_norm: float = 0.0
     """Global-norm clip of each gradient (0: none)."""
