@@ -39,6 +39,17 @@ def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path
     return path
 
 
+def cpu_compiler_options() -> dict | None:
+    """``jax.jit(..., compiler_options=...)`` for the RBF learning programs on the CPU.
+
+    XLA:CPU's LLVM optimisation level 1 instead of its default: measured on the 2-core
+    Xeon VM (session 18), it runs Algorithm 1's iteration 2.2x and the refinement step
+    1.5x faster (the RBF window gathers and scatters), compiles as fast, and gives the
+    same results up to float round-off. ``None`` (XLA's defaults) on other backends.
+    """
+    return {"xla_backend_optimization_level": 1} if jax.default_backend() == "cpu" else None
+
+
 @contextlib.contextmanager
 def watchdog(seconds: float, what: str = "this run"):
     """Fail loudly if the block takes longer than ``seconds``.

@@ -17,12 +17,14 @@ from jaxloco.learning import (
     load_checkpoint_config,
     load_planner,
     mean_policy,
+    rbf,
     save_checkpoint,
     survival_basin,
     train,
 )
 from jaxloco.learning import policy as pol
 from jaxloco.learning.actor_critic import init_train_state
+from jaxloco.learning.evaluation import mean_weights_policy
 from jaxloco.learning.refine import (
     log_soft_safety,
     make_refine_step,
@@ -32,6 +34,7 @@ from jaxloco.learning.refine import (
 )
 from jaxloco.learning.starts import StartStates, uniform_states
 from jaxloco.planner import PSPParams, plan_step
+from jaxloco.runtime import cpu_compiler_options
 
 P = PSPParams()
 
@@ -146,6 +149,67 @@ def test_training_refines_after_algorithm_1_and_checkpoints_record_it(tmp_path):
     off = train(dataclasses.replace(small, refine=RefineConfig(iterations=0)), progress=False)
     assert off.refinement is None and off.best_basin == off.actor_critic_basin
     assert len(off.history) == 4
+    # No Algorithm 1 at all: refinement starts from the initial weights.
+    alone = train(
+        dataclasses.replace(
+            small, actor_critic=dataclasses.replace(small.actor_critic, max_iterations=0)
+        ),
+        progress=False,
+    )
+    assert alone.actor_critic_basin is None and "max_iterations = 0" in alone.stop_reason
+    assert [h["stage"] for h in alone.history] == ["refine"] * 3
+    assert [h["iteration"] for h in alone.history] == [1, 2, 3]
+    initial = init_train_state(small.actor_critic, small.grid).params
+    assert alone.refinement.start["basin"] == pytest.approx(
+        float(
+            survival_basin(
+                mean_policy(initial, small.grid, small.planner),
+                small.planner,
+                jax.random.key(small.evaluation.seed),
+                128,
+                10,
+            )[0]
+        )
+    )
+
+
+def test_mean_channel_policy_matches_the_full_network_read_out():
+    planner = load_planner()
+    states = uniform_states(jax.random.key(3), 256, StartStates())
+    low, high = jnp.asarray(P.action_low), jnp.asarray(P.action_high)
+
+    def full(s):  # all 7 outputs, then the means
+        _, mean, _ = pol.network_outputs(planner.params, rbf.local_features(planner.grid, s))
+        return pol.mean_action(mean, low, high)
+
+    want = jax.vmap(full)(states)
+    got = jax.vmap(mean_policy(planner.params, planner.grid, P))(states)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(planner.mean_action(states), want, rtol=0, atol=1e-12)
+    value = jax.vmap(
+        lambda s: pol.network_outputs(planner.params, rbf.local_features(planner.grid, s))[0]
+    )
+    np.testing.assert_allclose(planner.value(states), value(states), rtol=0, atol=1e-12)
+
+
+def test_cpu_compiler_options_change_speed_not_results():
+    # XLA:CPU optimisation level 1 (jaxloco.runtime.cpu_compiler_options) for the learning
+    # programs: the same objective and gradient as XLA's defaults, up to round-off.
+    planner = load_planner()
+    cfg = RefineConfig(batch=64, horizon=3)
+    weights = (planner.params.table[..., pol.MEAN], planner.params.bias[pol.MEAN])
+    states = uniform_states(jax.random.key(5), cfg.batch, StartStates())
+
+    def objective(w):
+        policy = mean_weights_policy(*w, planner.grid, P)
+        return jnp.mean(jax.vmap(lambda s: rollout_objective(policy, s, P, cfg))(states))
+
+    options = cpu_compiler_options()
+    assert options == {"xla_backend_optimization_level": 1}  # the suite runs on the CPU
+    default = jax.jit(jax.value_and_grad(objective))(weights)
+    fast = jax.jit(jax.value_and_grad(objective), compiler_options=options)(weights)
+    for a, b in zip(jax.tree.leaves(default), jax.tree.leaves(fast), strict=True):
+        np.testing.assert_allclose(a, b, rtol=1e-9, atol=1e-12)
 
 
 @pytest.mark.parametrize(

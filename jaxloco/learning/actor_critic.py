@@ -30,6 +30,7 @@ terminal step or after ``max_episode_steps`` (then ``v(s')`` is bootstrapped).
 from __future__ import annotations
 
 import dataclasses
+import functools
 
 import jax
 import jax.numpy as jnp
@@ -41,6 +42,7 @@ from jaxloco.learning import rbf
 from jaxloco.learning.starts import EpisodeTurns, StartStates, episode_turns, training_starts
 from jaxloco.planner import PSPParams, lipm, plan_step
 from jaxloco.planner.steering import turn_local_frame
+from jaxloco.runtime import cpu_compiler_options
 
 OPTIMIZERS = ("sgd", "adam")
 
@@ -111,9 +113,12 @@ class ActorCriticConfig:
                 f"ActorCriticConfig.optimizer must be one of {OPTIMIZERS}; got {self.optimizer!r}"
             )
         for name in ("episodes_per_iteration", "max_episode_steps", "max_iterations"):
-            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < 1:
+            # max_iterations = 0: no Algorithm 1 (e.g. refinement from the initial weights).
+            minimum = 0 if name == "max_iterations" else 1
+            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < minimum:
                 raise ValueError(
-                    f"ActorCriticConfig.{name} must be an int >= 1; got {getattr(self, name)}"
+                    f"ActorCriticConfig.{name} must be an int >= {minimum}; "
+                    f"got {getattr(self, name)}"
                 )
 
 
@@ -372,7 +377,7 @@ def make_train_iteration(
     """A jitted ``(state, key) -> (state, stats)``: one batch of episodes and its update."""
     optimizer = make_optimizer(cfg)
 
-    @jax.jit
+    @functools.partial(jax.jit, compiler_options=cpu_compiler_options())
     def iteration(state: TrainState, key):
         k_start, k_roll = jax.random.split(key)
         s0 = training_starts(k_start, cfg.episodes_per_iteration, psp, starts)

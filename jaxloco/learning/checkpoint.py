@@ -31,6 +31,7 @@ from jaxloco.learning.actor_critic import (
     TrainState,
     init_train_state,
 )
+from jaxloco.learning.evaluation import mean_policy
 from jaxloco.learning.refine import RefineConfig
 from jaxloco.learning.starts import EpisodeTurns, StartStates
 from jaxloco.learning.training import EvalConfig, TrainConfig
@@ -124,10 +125,7 @@ class LearnedPlanner:
 
     def policy(self, state):
         """The deterministic policy for one apex state ``(3,) -> (3,)`` (for plan_steps)."""
-        _, mean, _ = pol.network_outputs(self.params, rbf.local_features(self.grid, state))
-        low = jnp.asarray(self.psp.action_low, mean.dtype)
-        high = jnp.asarray(self.psp.action_high, mean.dtype)
-        return pol.mean_action(mean, low, high)
+        return mean_policy(self.params, self.grid, self.psp)(state)
 
     def mean_action(self, state):
         """Mean actions for apex states ``(..., 3)`` (jittable, batched over leading axes)."""
@@ -137,7 +135,8 @@ class LearnedPlanner:
         """Learned value ``v(s)`` for apex states ``(..., 3)``: the paper's walking risk."""
 
         def one(s):
-            return pol.network_outputs(self.params, rbf.local_features(self.grid, s))[0]
+            table, bias = self.params.table[..., pol.VALUE], self.params.bias[pol.VALUE]
+            return rbf.evaluate(table, bias, rbf.local_features(self.grid, s))[0]
 
         return _batched(one, state)
 

@@ -17,10 +17,17 @@ from jaxloco.planner import PSPParams, plan_steps
 
 def mean_policy(params: pol.ActorCriticParams, grid: rbf.RBFGrid, psp: PSPParams):
     """The deterministic policy ``state (3,) -> action (3,)``: the mean, clipped to the box."""
+    return mean_weights_policy(params.table[..., pol.MEAN], params.bias[pol.MEAN], grid, psp)
+
+
+def mean_weights_policy(table, bias, grid: rbf.RBFGrid, psp: PSPParams):
+    """:func:`mean_policy` from the mean channels alone (``table (*table_shape, 3)``,
+    ``bias (3,)``). Each state gathers a window of 3 channels instead of all 7 (the gradient
+    scatters one): measured, 2.5x faster for a read-out and 2.7x for its gradient."""
     low, high = jnp.asarray(psp.action_low), jnp.asarray(psp.action_high)
 
     def policy(state):
-        _, mean, _ = pol.network_outputs(params, rbf.local_features(grid, state))
+        mean = rbf.evaluate(table, bias, rbf.local_features(grid, state))
         return pol.mean_action(mean, low.astype(mean.dtype), high.astype(mean.dtype))
 
     return policy

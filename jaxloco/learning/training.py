@@ -260,7 +260,13 @@ def train(config: TrainConfig = TrainConfig(), progress: bool = True, state=None
         compile_seconds=compile_s,
         train_seconds=train_s,
         eval_seconds=eval_s,
-        stop_reason=stop_reason if start_iteration < ac.max_iterations else "already done",
+        stop_reason=(
+            "no Algorithm 1 iterations (max_iterations = 0)"
+            if ac.max_iterations == 0
+            else stop_reason
+            if start_iteration < ac.max_iterations
+            else "already done"
+        ),
         actor_critic_basin=actor_critic_basin,
         refinement=refinement,
     )

@@ -46,6 +46,9 @@ def plot_learning_curve(history: list[dict], title: str = "RL-PSP training") -> 
                 pts = [(xv, h[key]) for xv, h in zip(x, history, strict=True) if key in h]
                 if pts:
                     ax.plot(*zip(*pts, strict=True))
+            if key != "basin" and not any(key in h for h in history):
+                note = "no Algorithm 1 iterations"
+                ax.text(0.5, 0.5, note, ha="center", va="center", transform=ax.transAxes)
             ax.set(xlabel=xlabel, title=label if row == 0 else None)
             ax.grid(alpha=0.3)
     fig.suptitle(title)
