@@ -60,10 +60,11 @@ class RefineConfig:
     """Start states per step (uniform over the box of Eq. 1, fresh each step)."""
     horizon: int = 4
     """Steps each start state is rolled through the planner. Measured from the shipped
-    Algorithm 1 policy (300 steps, seeds 0 and 1; basin on the training evaluator's draw /
-    an independent one; step times with another job on the 2 cores): 4 steps 0.514 /
-    0.504-0.505 at 0.31 s a step (0.19-0.22 s alone); 8 steps 0.510-0.511 / 0.498-0.501 at
-    0.48 s, and one 8-step run collapsed to 0 after 425 steps."""
+    Algorithm 1 policy (300 steps; basin on the training evaluator's draw / an independent
+    one of 4096 states): 4 steps 0.513-0.514 / 0.503-0.505 (session 18: 52-60 ms a step);
+    2 steps 0.513 / 0.500 at half the cost; 8 steps (session 17) 0.510-0.511 / 0.498-0.501,
+    and one 8-step run collapsed to 0 after 425 steps. From the initial weights 2 steps
+    reach the 50% basin fastest (README, fast route); 1 step does not learn (basin 0)."""
     learning_rate: float = 1e-3
     adam_eps: float = 1e-8
     """Adam's denominator floor."""
