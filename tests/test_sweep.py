@@ -2,6 +2,7 @@
 
 import json
 
+import jax
 import numpy as np
 import pytest
 
@@ -126,28 +127,57 @@ def test_paired_comparison_is_mcnemars_exact_test():
         paired_comparison(np.ones(3, bool), np.ones(4, bool))
 
 
-def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path):
-    """A real sweep (C backend): two pushes in chunks of 1 (stopped after one chunk, then
-    resumed) and in one chunk of 2 give the same outcomes."""
+def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, monkeypatch):
+    """A real sweep (C backend): two pushes in one chunk of 2, and in chunks of 1 (stopped
+    after one chunk, then resumed from the walk kept on disk) give the same outcomes."""
+    import jaxloco.sweep.run as sweep_run
     from jaxloco.sweep import run_sweep, write_report
 
+    walks = []
+    snapshot_walk = sweep_run.snapshot_walk
+    monkeypatch.setattr(
+        sweep_run, "snapshot_walk", lambda *a, **k: walks.append(a[3:6]) or snapshot_walk(*a, **k)
+    )
     spec = SweepSpec(**CI_SPEC)
-    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, max_chunks=1)
-    assert a.complete.tolist() == [True, False]
-    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False)
-    assert a.complete.all()
-    assert len(a.manifest["runs"]) == 2 and a.manifest["runs"][1]["chunks"] == [1]
-    assert a.outcomes["recovered"].dtype == bool
-    # 200 N x 0.1 s is well inside what the walking controller recovers.
-    assert a.outcomes["recovered"].all(), a.outcomes
-    assert np.all(a.outcomes["steps_after"] >= 1)
     b = run_sweep(spec, tmp_path / "b", backend="c", chunk_size=2, progress=False)
-    for k in FIELDS:
-        np.testing.assert_allclose(a.outcomes[k], b.outcomes[k], rtol=1e-5, err_msg=k)
     summary = write_report(tmp_path / "b")
     assert summary["variants"]["replan"]["recovered"] == 2
     assert (tmp_path / "b" / "success_polar.png").stat().st_size > 0
     assert json.loads((tmp_path / "b" / "summary.json").read_text())["pushes"] == 2
+
+    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, max_chunks=1)
+    assert a.complete.tolist() == [True, False]
+    assert len(list((tmp_path / "a" / "walks").glob("*.npz"))) == 1
+    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False)
+    assert a.complete.all()
+    assert len(a.manifest["runs"]) == 2 and a.manifest["runs"][1]["chunks"] == [1]
+    assert len(walks) == 2  # one per run directory: the resume loaded its walk from disk
+    assert a.outcomes["recovered"].dtype == bool
+    # 200 N x 0.1 s is well inside what the walking controller recovers.
+    assert a.outcomes["recovered"].all(), a.outcomes
+    assert np.all(a.outcomes["steps_after"] >= 1)
+    for k in FIELDS:
+        np.testing.assert_allclose(a.outcomes[k], b.outcomes[k], rtol=1e-5, err_msg=k)
+
+
+def test_walk_snapshots_round_trip_through_disk(tmp_path):
+    from jaxloco.sweep.starts import WalkSnapshots, load_snapshots, save_snapshots
+
+    template = {"gait": (np.zeros(3), np.int32(0)), "plan": np.zeros((2, 2))}
+    stacked = {"gait": (np.arange(6.0).reshape(2, 3), np.array([4, 5], np.int32)),
+               "plan": np.ones((2, 2, 2))}  # fmt: skip
+    snap = WalkSnapshots(np.array([0.3, 0.7]), np.array([1.1, 1.3]), np.ones((2, 5)), stacked,
+                         0.9, 0.6)  # fmt: skip
+    path = tmp_path / "walks" / "w.npz"
+    save_snapshots(path, snap)
+    got = load_snapshots(path, template)
+    assert sorted(p.name for p in path.parent.iterdir()) == ["w.npz"]  # no temporary left
+    np.testing.assert_array_equal(got.phases, snap.phases)
+    np.testing.assert_array_equal(got.physics, snap.physics)
+    assert (got.step_start, got.step_duration) == (0.9, 0.6)
+    for x, y in zip(jax.tree.leaves(got.controller), jax.tree.leaves(stacked), strict=True):
+        np.testing.assert_array_equal(x, y)
+        assert x.dtype == y.dtype
 
 
 @pytest.mark.slow

@@ -34,7 +34,14 @@ from jaxloco.sim.push import body_index
 from jaxloco.sweep.backends import CBatchBackend, ChunkStarts, MJXBackend
 from jaxloco.sweep.outcome import finalize
 from jaxloco.sweep.spec import PushTable, SweepSpec, expand
-from jaxloco.sweep.starts import gather_starts, snapshot_walk, walk_key
+from jaxloco.sweep.starts import (
+    gather_starts,
+    initial_controller_state,
+    load_snapshots,
+    save_snapshots,
+    snapshot_walk,
+    walk_key,
+)
 from jaxloco.sweep.store import SweepStore
 
 BACKENDS = ("c", "mjx")
@@ -138,19 +145,29 @@ def _run_chunks(
     dt = model.opt.timestep
     horizon_steps = int(round(spec.horizon / dt))
 
-    # Undisturbed walks: one per (speed, turn, replan) the remaining rows need.
+    # Undisturbed walks: one per (speed, turn, replan) the remaining rows need, snapshotted
+    # at every phase the whole table asks of it and kept on disk, so a resumed sweep walks
+    # nothing twice (a walk does not depend on which phases it stops at).
     rows_todo = np.concatenate([chunks[i] for i in todo])
     step_fn = jax.jit(ctrl.step)
     snapshots = {}
-    keys = [
+    all_keys = [
         walk_key(table["apex_speed"][r], table["turn_deg"][r], table["replan"][r])
-        for r in rows_todo
+        for r in range(len(table))
     ]
-    for key in tqdm(sorted(set(keys)), desc="undisturbed walks", disable=not progress):
-        phases = table["phase"][rows_todo][[k == key for k in keys]]
+    needed = sorted({all_keys[r] for r in rows_todo})
+    for key in tqdm(needed, desc="undisturbed walks", disable=not progress):
+        path = store.walk_path(key)
+        if path.exists():
+            template = initial_controller_state(ctrl, sim_model, *key)
+            snapshots[key] = load_snapshots(path, template)
+            continue
+        phases = table["phase"][[k == key for k in all_keys]]
         snapshots[key] = snapshot_walk(
             sim_model, ctrl, step_fn, *key, spec.push_step, phases, spec.fall_height
         )
+        if store.writer:
+            save_snapshots(path, snapshots[key])
     t_walks = time.perf_counter() - t_start
 
     if backend == "c":

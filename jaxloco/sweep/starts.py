@@ -13,6 +13,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -43,6 +45,40 @@ class WalkSnapshots:
     step_start: float
     step_duration: float
     """Start and planned duration of step ``push_step`` (s)."""
+
+
+def save_snapshots(path, snapshots: WalkSnapshots) -> None:
+    """Write ``snapshots`` to ``path`` (.npz) atomically: the file is whole or absent."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    leaves = jax.tree.leaves(snapshots.controller)
+    tmp = path.with_name(path.stem + ".tmp.npz")
+    np.savez(
+        tmp,
+        phases=snapshots.phases,
+        times=snapshots.times,
+        physics=snapshots.physics,
+        step=np.asarray([snapshots.step_start, snapshots.step_duration]),
+        **{f"controller_{i}": np.asarray(x) for i, x in enumerate(leaves)},
+    )
+    os.replace(tmp, path)
+
+
+def load_snapshots(path, controller_template) -> WalkSnapshots:
+    """Read what :func:`save_snapshots` wrote; ``controller_template``: any controller
+    state of the same structure (e.g. :func:`initial_controller_state`)."""
+    treedef = jax.tree.structure(controller_template)
+    with np.load(path) as f:
+        leaves = [f[f"controller_{i}"] for i in range(treedef.num_leaves)]
+        step_start, step_duration = (float(x) for x in f["step"])
+        return WalkSnapshots(
+            f["phases"],
+            f["times"],
+            f["physics"],
+            jax.tree.unflatten(treedef, leaves),
+            step_start,
+            step_duration,
+        )
 
 
 def walk_key(apex_speed: float, turn_deg: float, replan: bool) -> tuple:

@@ -5,6 +5,8 @@ Layout of a run directory::
     manifest.json        spec, resolved config, chunking, backend, device, timings
     pushes.npz           the push table (one row per push)
     chunks/00012.npz     outcomes of rows [12 * chunk_size, 13 * chunk_size)
+    walks/1.0_0.0_1.npz  snapshots of the undisturbed walk at apex speed 1.0, turn 0 deg,
+                         replanning on (every phase the push table asks of it)
 
 Chunk files are written to a temporary name and renamed, so a chunk file is either whole
 or absent: an interrupted sweep loses at most the chunk in flight, and running the same
@@ -86,6 +88,7 @@ class SweepStore:
         if not self.writer:
             return manifest
         self.chunks_dir.mkdir(parents=True, exist_ok=True)
+        (self.dir / "walks").mkdir(exist_ok=True)
         np.savez(self.dir / "pushes.npz", **table.columns)
         self.write_manifest(manifest)
         return manifest
@@ -103,6 +106,11 @@ class SweepStore:
         tmp = path.with_name(path.stem + ".tmp.npz")
         np.savez(tmp, rows=rows, **outcome)
         os.replace(tmp, path)
+
+    def walk_path(self, key: tuple) -> Path:
+        """Where the undisturbed walk ``(apex_speed, turn_deg, replan)`` is kept."""
+        speed, turn, replan = key
+        return self.dir / "walks" / f"{speed!r}_{turn!r}_{int(replan)}.npz"
 
     def load_table(self) -> PushTable:
         with np.load(self.dir / "pushes.npz") as f:
