@@ -4,6 +4,8 @@ differentiable planner) and save it with its learning curve.
     jaxloco train-planner                              # the FAST preset, then refinement
     jaxloco train-planner refine.iterations=0          # Algorithm 1 alone, as the paper
     jaxloco train-planner actor_critic.max_iterations=400 actor_critic.seed=3
+    # the fast route (< 10 s here): no Algorithm 1, refinement from the initial weights
+    jaxloco train-planner actor_critic.max_iterations=0 refine.horizon=2 refine.iterations=100
     jaxloco train-planner hydra.run.dir=runs/planner   # choose the output folder
     jaxloco train-planner resume_from=runs/planner/checkpoint
 

@@ -12,7 +12,13 @@ from jaxloco.learning.checkpoint import (
     load_planner,
     save_checkpoint,
 )
-from jaxloco.learning.evaluation import mean_policy, steps_survived, survival_basin, value_function
+from jaxloco.learning.evaluation import (
+    mean_policy,
+    mean_weights_policy,
+    steps_survived,
+    survival_basin,
+    value_function,
+)
 from jaxloco.learning.rbf import RBFGrid
 from jaxloco.learning.refine import RefineConfig, RefineResult, refine
 from jaxloco.learning.starts import EpisodeTurns, StartStates
@@ -37,6 +43,7 @@ __all__ = [
     "load_planner",
     "make_train_iteration",
     "mean_policy",
+    "mean_weights_policy",
     "refine",
     "save_checkpoint",
     "steps_survived",
