@@ -1,10 +1,11 @@
 """Test configuration: float64 everywhere (precision matters in the reference checks),
 ``--runslow`` for the full-size end-to-end runs (CI runs their small versions), and one
-persistent XLA compilation cache per test process, so tests that build the same controller
+persistent XLA compilation cache per test session, so tests that build the same controller
 (walking, sweeps, experiments) compile it once. The cache lives in a fresh temporary
 folder: every session compiles from scratch, nothing carries over between runs. Under
-``pytest -n 2 --dist loadfile`` (``make test``) each worker has its own cache and runs
-whole files, so the tests of one file still share their compiles."""
+``pytest -n 2 --dist loadfile`` (``make test``) the controller process makes the folder
+and both workers inherit it through the environment, so a program one worker compiled is
+a cache hit for the other (JAX writes cache entries atomically)."""
 
 import os
 import tempfile
@@ -15,9 +16,11 @@ import pytest
 from jaxloco.runtime import enable_compilation_cache
 
 jax.config.update("jax_enable_x64", True)
-_CACHE = tempfile.TemporaryDirectory(prefix="jaxloco-test-xla-")
-os.environ["JAXLOCO_CACHE_DIR"] = _CACHE.name  # experiments run in-process use it too
-enable_compilation_cache(_CACHE.name)
+if "JAXLOCO_TEST_CACHE_DIR" not in os.environ:  # the xdist controller, or a plain run
+    _CACHE = tempfile.TemporaryDirectory(prefix="jaxloco-test-xla-")  # removed at exit
+    os.environ["JAXLOCO_TEST_CACHE_DIR"] = _CACHE.name  # xdist workers inherit it
+os.environ["JAXLOCO_CACHE_DIR"] = os.environ["JAXLOCO_TEST_CACHE_DIR"]  # in-process CLIs too
+enable_compilation_cache(os.environ["JAXLOCO_TEST_CACHE_DIR"])
 
 
 def pytest_addoption(parser):
