@@ -105,7 +105,8 @@ def test_walking_keyframe(model):
 
 
 def test_contacts_are_only_soles_on_the_floor(model):
-    assert model.npair == 2
+    """Per foot, 4 contact spheres whose lowest points are the sole box's bottom corners."""
+    assert model.npair == 8
     assert all(
         model.geom_contype[g] == 0 and model.geom_conaffinity[g] == 0 for g in range(model.ngeom)
     )
@@ -113,9 +114,23 @@ def test_contacts_are_only_soles_on_the_floor(model):
     pairs = {
         frozenset((int(model.pair_geom1[i]), int(model.pair_geom2[i]))) for i in range(model.npair)
     }
-    soles = (model.geom("left_sole").id, model.geom("right_sole").id)
-    assert pairs == {frozenset((s, floor)) for s in soles}
+    spheres = [model.geom(f"{side}_sole{k}").id for side in ("left", "right") for k in range(4)]
+    assert pairs == {frozenset((s, floor)) for s in spheres}
     np.testing.assert_allclose(model.pair_friction[:, 0], 0.8)
+    for side in ("left", "right"):
+        box = model.geom(f"{side}_sole")
+        half = box.size
+        want = {(round(box.pos[0] + sx * half[0], 6), round(box.pos[1] + sy * half[1], 6))
+                for sx in (1, -1) for sy in (1, -1)}  # fmt: skip
+        got = set()
+        for k in range(4):
+            ball = model.geom(f"{side}_sole{k}")
+            assert ball.type[0] == mujoco.mjtGeom.mjGEOM_SPHERE
+            assert ball.bodyid[0] == box.bodyid[0]
+            # the sphere's lowest point lies on the box's bottom face
+            assert ball.pos[2] - ball.size[0] == pytest.approx(box.pos[2] - half[2], abs=1e-9)
+            got.add((round(ball.pos[0], 6), round(ball.pos[1], 6)))
+        assert got == want
 
 
 def test_committed_xml_is_what_the_generator_writes(tmp_path):
