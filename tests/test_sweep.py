@@ -144,6 +144,9 @@ def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, 
     assert summary["variants"]["replan"]["recovered"] == 2
     assert (tmp_path / "b" / "success_polar.png").stat().st_size > 0
     assert json.loads((tmp_path / "b" / "summary.json").read_text())["pushes"] == 2
+    # One chunk: its time includes the compile, so no steady rate is claimed.
+    assert b.manifest["runs"][0]["env_steps_per_s"] is None
+    assert "no compile-free rate" in (tmp_path / "b" / "summary.md").read_text()
 
     a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, max_chunks=1)
     assert a.complete.tolist() == [True, False]

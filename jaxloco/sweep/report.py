@@ -123,11 +123,16 @@ def _markdown(summary: dict, manifest: dict) -> str:
     runs = manifest.get("runs", [])
     if runs:
         r = runs[-1]
+        rate = r.get("env_steps_per_s")
+        rate = (
+            f"{rate:.0f} env-steps/s steady"
+            if rate is not None
+            else "one chunk only, so no compile-free rate"
+        )
         lines += [
             "",
             f"Last run: {r['wall_s']:.0f} s wall, first chunk (with compile) "
-            f"{r['first_chunk_s']:.1f} s, {r['env_steps_per_s']:.0f} env-steps/s steady, "
-            f"devices {manifest.get('devices')}.",
+            f"{r['first_chunk_s']:.1f} s, {rate}, devices {manifest.get('devices')}.",
         ]
     return "\n".join(lines) + "\n"
 

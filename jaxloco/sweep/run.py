@@ -223,15 +223,17 @@ def _run_chunks(
         )
     bar.close()
 
-    steady = chunk_times[1:] or chunk_times
+    # The first chunk includes the compile: a steady rate needs a second chunk (None without).
+    steady = float(np.mean(chunk_times[1:])) if len(chunk_times) > 1 else None
     manifest = store.read_manifest()
     manifest["runs"].append(
         {
             "chunks": list(todo),
             "undisturbed_walks_s": t_walks,
             "first_chunk_s": chunk_times[0],
-            "steady_chunk_s": float(np.mean(steady)),
-            "env_steps_per_s": chunk_size * horizon_steps / float(np.mean(steady)),
+            "first_chunk_env_steps_per_s": chunk_size * horizon_steps / chunk_times[0],
+            "steady_chunk_s": steady,
+            "env_steps_per_s": None if steady is None else chunk_size * horizon_steps / steady,
             "wall_s": time.perf_counter() - t_start,
         }
     )
