@@ -152,6 +152,7 @@ def sole_corner_spheres() -> list[tuple[float, float, float]]:
     z = SOLE_Z + SOLE_SPHERE_RADIUS
     return [(cx + sx * hx, cy + sy * hy, z) for sx in (1, -1) for sy in (1, -1)]
 
+
 WALK_POSTURE = {
     "hipPitch": -0.3,
     "knee": 0.6,
