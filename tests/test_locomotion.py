@@ -76,6 +76,28 @@ def test_retargeted_swing_is_time_consistent_and_does_not_compound():
     assert peak < 1.2 * 1.875 * target / 0.6
 
 
+def test_swing_replanned_while_landing_never_goes_below_the_floor():
+    """A foot about to land (2 cm up, coming down at 1.5 m/s) re-planned to land 0.22 s
+    later: continuing its vertical velocity and acceleration would take the height below
+    the floor, so they give way; the ground path still continues without a jump."""
+    pos = jnp.array([1.14, 0.1, 0.02])
+    vel, acc = jnp.array([0.3, 0.0, -1.5]), jnp.array([0.1, 0.0, -20.0])
+    target = jnp.array([1.36, -0.12, 0.0])
+    new = make_swing(pos, target, 0.5, 0.22, 0.02, vel, acc)
+    p, v, a = jax.vmap(new.evaluate)(jnp.linspace(0.5, 0.72, 400))
+    assert float(jnp.min(p[:, 2])) >= -1e-12
+    np.testing.assert_allclose(p[0], pos, atol=1e-12)
+    np.testing.assert_allclose(p[-1], target, atol=1e-12)
+    np.testing.assert_allclose(v[0, :2], vel[:2], atol=1e-9)
+    np.testing.assert_allclose(a[0, :2], acc[:2], atol=1e-7)
+    assert float(v[0, 2]) > -1.0  # the clamp bound: z velocity not continued
+    # A foot coming down slowly keeps its velocity and acceleration (the clamp is idle).
+    slow = make_swing(pos, target, 0.5, 0.22, 0.05, vel.at[2].set(-0.05), acc.at[2].set(0.0))
+    _, v_slow, a_slow = slow.evaluate(0.5)
+    assert float(v_slow[2]) == pytest.approx(-0.05, abs=1e-9)
+    assert float(a_slow[2]) == pytest.approx(0.0, abs=1e-7)
+
+
 def test_swing_is_acceleration_continuous_and_derivatives_match_differences():
     s = make_swing(jnp.zeros(3), jnp.array([0.4, -0.1, 0.0]), 0.0, 1.0, 0.1)
     for knot in np.unique(KNOTS[(KNOTS > 0) & (KNOTS < 1)]):
@@ -193,6 +215,31 @@ def test_replan_threshold_is_per_robot_data():
             state = step(state, t, pos + jnp.array([0.08, 0.0, 0.0]), vel)
         replans[threshold] = int(state.replans)
     assert replans[0.05] >= 1 and replans[0.2] == 0, replans
+
+
+def test_a_foot_landing_late_does_not_lift_the_next_steps():
+    """At the planned touch-down the landing foot is still 5 cm up (it lands late after a
+    push): the new stance frame keeps the planned landing height, so the next footstep and
+    the CoM reference stay on the floor; the measured x, y are kept."""
+    psp, params = PSPParams(), GaitParams()
+    feet = jnp.array([[0.0, 0.14, 0.0], [0.0, -0.14, 0.0]])
+    policy = lambda s: jnp.array([0.25, 0.2, 0.0])  # noqa: E731
+    t_lift, dt = params.start_duration, 1e-3
+    state = gait_lib.init_gait(params, psp, jnp.array([0.0, 0.0, 1.06]), feet)
+    zero = jnp.zeros(3)
+    state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
+    landing = 1 - int(state.stance)
+    t_down = t_lift + float(state.step_duration)
+    target = state.target
+    assert float(target[2]) == 0.0
+    late = feet.at[landing].set(target + jnp.array([0.01, -0.02, 0.05]))
+    pos, vel, _ = gait_lib.com_reference(state, params, psp, t_down)
+    new = gait_lib.advance(state, params, psp, policy, t_down, pos, vel, late, dt)
+    assert int(new.step) == 2 and int(new.stance) == landing
+    np.testing.assert_allclose(new.stance_pos, late[landing].at[2].set(0.0), atol=1e-12)
+    assert float(new.target[2]) == 0.0
+    com_z = gait_lib.com_reference(new, params, psp, t_down + 0.1)[0][2]
+    assert float(com_z) == pytest.approx(psp.h, abs=1e-9)
 
 
 # --- pushes -----------------------------------------------------------------------------
