@@ -18,6 +18,7 @@ from jaxloco.locomotion import GaitParams, make_swing, make_walking_controller, 
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.swing import KNOTS
 from jaxloco.planner import PSPParams
+from jaxloco.planner.psp import Reason
 from jaxloco.sim import mjx_loop
 from jaxloco.sim.push import Push, apply_push_c, body_index, push_force
 from jaxloco.sim.scenarios import simulate_walk
@@ -233,13 +234,82 @@ def test_a_foot_landing_late_does_not_lift_the_next_steps():
     target = state.target
     assert float(target[2]) == 0.0
     late = feet.at[landing].set(target + jnp.array([0.01, -0.02, 0.05]))
-    pos, vel, _ = gait_lib.com_reference(state, params, psp, t_down)
-    new = gait_lib.advance(state, params, psp, policy, t_down, pos, vel, late, dt)
+    t_switch = t_down + params.max_touchdown_delay  # it never came down: switches anyway
+    pos, vel, _ = gait_lib.com_reference(state, params, psp, t_switch)
+    new = gait_lib.advance(state, params, psp, policy, t_switch, pos, vel, late, dt)
     assert int(new.step) == 2 and int(new.stance) == landing
     np.testing.assert_allclose(new.stance_pos, late[landing].at[2].set(0.0), atol=1e-12)
     assert float(new.target[2]) == 0.0
-    com_z = gait_lib.com_reference(new, params, psp, t_down + 0.1)[0][2]
+    com_z = gait_lib.com_reference(new, params, psp, t_switch + 0.1)[0][2]
     assert float(com_z) == pytest.approx(psp.h, abs=1e-9)
+
+
+def test_touchdown_waits_for_a_late_foot_and_presses_it_down():
+    """At the planned touch-down the landing foot is 3 cm up: the stance does not switch,
+    the swing reference goes ``late_landing_depth`` below the target; it switches as soon
+    as the foot is down, or after ``max_touchdown_delay`` if it never is."""
+    psp, params = PSPParams(), GaitParams(max_touchdown_delay=0.1)
+    feet = jnp.array([[0.0, 0.14, 0.0], [0.0, -0.14, 0.0]])
+    policy = lambda s: jnp.array([0.25, 0.2, 0.0])  # noqa: E731
+    t_lift, dt = params.start_duration, 1e-3
+    state = gait_lib.init_gait(params, psp, jnp.array([0.0, 0.0, 1.06]), feet)
+    zero = jnp.zeros(3)
+    state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
+    landing = 1 - int(state.stance)
+    t_down = t_lift + float(state.step_duration)
+    up = feet.at[landing].set(state.target + jnp.array([0.0, 0.0, 0.03]))
+    down = feet.at[landing].set(state.target + jnp.array([0.0, 0.0, 0.004]))
+
+    def tick(s, t, f):
+        pos, vel, _ = gait_lib.com_reference(s, params, psp, t)
+        return gait_lib.advance(s, params, psp, policy, t, pos, vel, f, dt)
+
+    waiting = tick(state, t_down, up)
+    assert int(waiting.step) == 1
+    ref = gait_lib.references(waiting, params, psp, t_down + 0.01, zero, zero)
+    assert float(ref.swing[0][2]) == pytest.approx(
+        float(state.target[2]) - params.late_landing_depth, abs=1e-12
+    )
+    assert float(ref.contact[landing]) == 0.0
+    assert int(tick(waiting, t_down + 0.02, down).step) == 2  # down: switches
+    assert int(tick(waiting, t_down + 0.05, up).step) == 1  # still up: waits
+    late = t_down + params.max_touchdown_delay
+    assert int(tick(waiting, late, up).step) == 2  # up, but waited long enough
+
+
+def test_step_timing_adaptation_bounds_the_lateral_dcm_at_touchdown():
+    """``dcm_time_limit`` is when the LIPM's lateral DCM reaches ``max_lateral_dcm``
+    (checked by numerical integration), and a replan after a lateral push lands then,
+    flagged ``STEP_SHORTENED``."""
+    psp, params = PSPParams(), GaitParams()
+    w = psp.omega
+    for rel, vel in (((0.0, 0.05), (0.3, 0.4)), ((0.0, 0.02), (0.3, -0.5))):
+        rel, vel = jnp.asarray(rel), jnp.asarray(vel)
+        t_max = float(gait_lib.dcm_time_limit(params, w, rel, vel))
+        sol = solve_ivp(
+            lambda _, x: [x[1], w**2 * x[0]], (0, t_max), [rel[1], vel[1]], rtol=1e-11, atol=1e-12
+        )
+        xi = sol.y[0, -1] + sol.y[1, -1] / w
+        bound = params.max_lateral_dcm[1] if xi > 0 else params.max_lateral_dcm[0]
+        assert abs(xi) == pytest.approx(bound, rel=1e-7)
+    # Walking: a CoM 8 cm off its reference and running sideways at 0.8 m/s replans.
+    feet = jnp.array([[0.0, 0.14, 0.0], [0.0, -0.14, 0.0]])
+    policy = lambda s: jnp.array([0.25, 0.2, 0.0])  # noqa: E731
+    t_lift, dt = params.start_duration, 1e-3
+    state = gait_lib.init_gait(params, psp, jnp.array([0.0, 0.0, 1.06]), feet)
+    zero = jnp.zeros(3)
+    state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
+    nominal = float(state.step_duration)
+    side = float(state.lateral_sign) * jnp.array([0.0, 1.0, 0.0])  # towards the swing side
+    for k in range(40, 80):
+        t = t_lift + k * dt
+        pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
+        state = gait_lib.advance(
+            state, params, psp, policy, t, pos + 0.08 * side, vel + 0.8 * side, feet, dt
+        )
+    assert int(state.replans) >= 1
+    assert int(state.last_reason) & int(Reason.STEP_SHORTENED)
+    assert float(state.step_duration) < nominal
 
 
 # --- pushes -----------------------------------------------------------------------------

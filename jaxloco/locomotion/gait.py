@@ -33,6 +33,14 @@ Plans that have no solution (``INFEASIBLE`` reasons) fall back to a capture step
 (:func:`capture_step`) and are counted in ``GaitState.failed_plans``; footsteps are
 clipped to ``step_x_range`` x ``step_y_range`` and step durations to
 ``[min_step_duration, max_step_duration]``.
+
+**Step timing adaptation.** The PSP times a step by the sagittal orbits. A plan whose
+touch-down comes after the lateral DCM has left ``max_lateral_dcm`` is shortened to land
+when it reaches it, on the capture step (``Reason.STEP_SHORTENED`` in ``last_reason``).
+
+**Touch-down.** The new stance frame takes the landing foot's measured x, y and its
+planned height (a late foot is still in the air). Optionally
+(``max_touchdown_delay``) the switch waits for the foot to be down.
 """
 
 from __future__ import annotations
@@ -48,7 +56,7 @@ from flax import struct
 from jaxloco.dynamics import se3
 from jaxloco.locomotion.swing import SwingSpline, make_swing, quintic, retarget_swing
 from jaxloco.planner import lipm
-from jaxloco.planner.psp import INFEASIBLE, PSPParams, plan_apex_components
+from jaxloco.planner.psp import INFEASIBLE, PSPParams, Reason, plan_apex_components
 from jaxloco.planner.steering import local_to_world, world_to_local
 
 START, WALK = 0, 1
@@ -85,10 +93,31 @@ class GaitParams:
     goes to the LIPM capture point predicted at touch-down, ``x + xd / omega``, moved back
     by ``b_x`` and outwards by ``b_y`` (m, local frame), so that the CoM then diverges
     forward and back towards the old stance side, and walking resumes at the next plan."""
+    max_lateral_dcm: tuple[float, float] = (0.15, 0.55)
+    """Step timing adaptation: bounds on the lateral DCM ``y + yd / omega`` (stance frame,
+    m) at touch-down, (inwards, past the stance foot; outwards, towards the swing side).
+    The PSP times a step by the sagittal orbits, so after a lateral push it can plan a
+    touch-down long after the lateral DCM has run out of reach (measured after a 520 N
+    push: 1.9 m at the planned touch-down, 0.7 s ahead). A step planned to land later
+    than the LIPM's DCM reaches its bound lands then, on the capture step (below)."""
     step_x_range: tuple[float, float] = (-0.45, 0.65)
     step_y_range: tuple[float, float] = (0.12, 0.6)
     """Kinematic limits of a footstep in the stance frame (m): every planned or fallback
     step is clipped to them (``y`` > 0 keeps the legs from crossing)."""
+    touchdown_height: float = 0.005
+    """A landing foot is down when its contact frame is within this height of its target
+    (m). With ``max_touchdown_delay`` > 0, the gait switches stance at the planned
+    touch-down only once the foot is down:
+    a stance foot still in the air (a late landing after a push, or a step shortened by
+    ``max_lateral_dcm``) would be held there by the contact constraint, standing on
+    nothing."""
+    max_touchdown_delay: float = 0.0
+    """The longest a touch-down waits for a late foot (s); then the stance switches anyway.
+    0 (the default): no wait. On issue 7's 40 pushes of 520 N (C backend) waiting up to
+    0.1 s recovered 30 against 37 without, so it is an option, not the default."""
+    late_landing_depth: float = 0.03
+    """While a touch-down waits, the swing foot's height reference is this far below its
+    target (m), so that the foot goes down instead of hovering over it."""
     replan: bool = True
     replan_threshold: float = 0.05
     """Eq. 33's error norm that triggers replanning. Per robot it is data
@@ -138,6 +167,13 @@ class GaitParams:
                 all(0 <= b < 0.3 for b in self.fallback_dcm_offset),
                 "two numbers in [0, 0.3)",
             ),
+            "max_lateral_dcm": (
+                all(0 < b < 5 for b in self.max_lateral_dcm),
+                "two numbers in (0, 5)",
+            ),
+            "touchdown_height": (0 < self.touchdown_height < 0.1, "in (0, 0.1)"),
+            "max_touchdown_delay": (0 <= self.max_touchdown_delay < 1, "in [0, 1)"),
+            "late_landing_depth": (0 <= self.late_landing_depth < 0.2, "in [0, 0.2)"),
             "step_x_range": (
                 self.step_x_range[0] < 0 < self.step_x_range[1],
                 "(low < 0 < high): stepping back and forth must both be possible",
@@ -371,6 +407,17 @@ def capture_step(params: GaitParams, w, rel, vel, remaining):
     return capture + jnp.asarray([-bx, by], rel.dtype)
 
 
+def dcm_time_limit(params: GaitParams, w, rel, vel):
+    """Time until the LIPM's lateral DCM (local ``rel``, ``vel``, (2,)) leaves
+    ``params.max_lateral_dcm`` (0 when it is already out): about the stance foot the DCM
+    moves as ``xi(t) = xi(0) exp(omega t)``."""
+    xi = rel[1] + vel[1] / w
+    inward, outward = params.max_lateral_dcm
+    bound = jnp.where(xi >= 0, outward, inward)
+    ratio = bound / jnp.maximum(jnp.abs(xi), 1e-9)
+    return jnp.log(jnp.maximum(ratio, 1.0)) / w
+
+
 def _plan(
     params: GaitParams,
     psp: PSPParams,
@@ -400,9 +447,13 @@ def _plan(
     plan = plan_apex_components(y_apex, v_apex, yd_apex, action, psp)
     failed = (~apex_ok) | ((plan.reason & int(INFEASIBLE)) != 0)
     duration = jnp.where(failed, fallback_remaining, tau + plan.t_switch)
+    # Step timing adaptation: land before the lateral DCM runs out of reach.
+    limit = dcm_time_limit(params, w, rel, vel)
+    shortened = duration > limit
+    duration = jnp.minimum(duration, limit)
     step = jnp.where(
-        failed,
-        capture_step(params, w, rel, vel, fallback_remaining),
+        failed | shortened,
+        capture_step(params, w, rel, vel, duration),
         jnp.stack([plan.p_x, plan.p_y]),
     )
     step = jnp.clip(
@@ -411,7 +462,11 @@ def _plan(
         jnp.asarray([params.step_x_range[1], params.step_y_range[1]], rel.dtype),
     )
     foot_xy = stance_pos[:2] + local_to_world(step, heading, sign)
-    reason = plan.reason | jnp.where(apex_ok, 0, 512).astype(jnp.int32)
+    reason = (
+        plan.reason
+        | jnp.where(apex_ok, 0, int(Reason.NO_APEX))
+        | jnp.where(shortened, int(Reason.STEP_SHORTENED), 0)
+    ).astype(jnp.int32)
     return duration, foot_xy, apex, action, reason, failed
 
 
@@ -550,7 +605,11 @@ def advance(
     velocity (3,) and the feet's contact-frame positions (2, 3)."""
     t = jnp.asarray(t, state.step_start.dtype)
     elapsed = t - state.step_start
-    due = elapsed >= state.step_duration - 1e-9
+    # A touch-down waits (up to max_touchdown_delay) for the landing foot to be down.
+    landing = 1 - state.stance
+    down = feet_pos[landing, 2] <= state.target[2] + params.touchdown_height
+    late = elapsed >= state.step_duration + params.max_touchdown_delay - 1e-9
+    due = (elapsed >= state.step_duration - 1e-9) & ((state.phase == START) | down | late)
 
     def first_liftoff(s):
         stance = s.stance
@@ -636,11 +695,14 @@ def references(
         fyaw * du / state.swing.duration,
         fyaw * ddu / state.swing.duration**2,
     )
+    swing_pos, swing_vel, swing_acc = state.swing.evaluate(t)
+    waiting = walking & (elapsed > state.step_duration)  # a late foot: press it down
+    swing_pos = swing_pos.at[2].add(jnp.where(waiting, -params.late_landing_depth, 0.0))
     return GaitReferences(
         contact=contact,
         swinging=swinging,
         com=com_reference(state, params, psp, t),
-        swing=state.swing.evaluate(t),
+        swing=(swing_pos, swing_vel, swing_acc),
         swing_foot=swing_foot,
         swing_yaw=swing_yaw,
         body_yaw=body_yaw,

@@ -167,6 +167,9 @@ class Reason(enum.IntFlag):
     """(multi-step planning) the CoM does not cross the stance foot moving forward."""
     SWITCH_IN_PAST = 1024
     """(multi-step planning) after re-projection, the switch would precede the present."""
+    STEP_SHORTENED = 2048
+    """(walking gait) the touch-down was brought forward to keep the lateral DCM within
+    reach (``GaitParams.max_lateral_dcm``); not terminal, the step is taken."""
 
 
 # Bits meaning the equations have no solution (as opposed to an unsafe but real one).
