@@ -218,17 +218,25 @@ def test_replan_threshold_is_per_robot_data():
     assert replans[0.05] >= 1 and replans[0.2] == 0, replans
 
 
-def test_a_foot_landing_late_does_not_lift_the_next_steps():
-    """At the planned touch-down the landing foot is still 5 cm up (it lands late after a
-    push): the new stance frame keeps the planned landing height, so the next footstep and
-    the CoM reference stay on the floor; the measured x, y are kept."""
-    psp, params = PSPParams(), GaitParams()
+def _lifted_off(params):
+    """A gait at its first lift-off (feet at y = +-0.14, the nominal action everywhere):
+    ``(psp, policy, feet, state, t_lift, dt)``."""
+    psp = PSPParams()
     feet = jnp.array([[0.0, 0.14, 0.0], [0.0, -0.14, 0.0]])
     policy = lambda s: jnp.array([0.25, 0.2, 0.0])  # noqa: E731
     t_lift, dt = params.start_duration, 1e-3
     state = gait_lib.init_gait(params, psp, jnp.array([0.0, 0.0, 1.06]), feet)
     zero = jnp.zeros(3)
     state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
+    return psp, policy, feet, state, t_lift, dt
+
+
+def test_a_foot_landing_late_does_not_lift_the_next_steps():
+    """At the planned touch-down the landing foot is still 5 cm up (it lands late after a
+    push): the new stance frame keeps the planned landing height, so the next footstep and
+    the CoM reference stay on the floor; the measured x, y are kept."""
+    params = GaitParams()
+    psp, policy, feet, state, t_lift, dt = _lifted_off(params)
     landing = 1 - int(state.stance)
     t_down = t_lift + float(state.step_duration)
     target = state.target
@@ -248,13 +256,9 @@ def test_touchdown_waits_for_a_late_foot_and_presses_it_down():
     """At the planned touch-down the landing foot is 3 cm up: the stance does not switch,
     the swing reference goes ``late_landing_depth`` below the target; it switches as soon
     as the foot is down, or after ``max_touchdown_delay`` if it never is."""
-    psp, params = PSPParams(), GaitParams(max_touchdown_delay=0.1)
-    feet = jnp.array([[0.0, 0.14, 0.0], [0.0, -0.14, 0.0]])
-    policy = lambda s: jnp.array([0.25, 0.2, 0.0])  # noqa: E731
-    t_lift, dt = params.start_duration, 1e-3
-    state = gait_lib.init_gait(params, psp, jnp.array([0.0, 0.0, 1.06]), feet)
+    params = GaitParams(max_touchdown_delay=0.1)
+    psp, policy, feet, state, t_lift, dt = _lifted_off(params)
     zero = jnp.zeros(3)
-    state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
     landing = 1 - int(state.stance)
     t_down = t_lift + float(state.step_duration)
     up = feet.at[landing].set(state.target + jnp.array([0.0, 0.0, 0.03]))
@@ -293,12 +297,7 @@ def test_step_timing_adaptation_bounds_the_lateral_dcm_at_touchdown():
         bound = params.max_lateral_dcm[1] if xi > 0 else params.max_lateral_dcm[0]
         assert abs(xi) == pytest.approx(bound, rel=1e-7)
     # Walking: a CoM 8 cm off its reference and running sideways at 0.8 m/s replans.
-    feet = jnp.array([[0.0, 0.14, 0.0], [0.0, -0.14, 0.0]])
-    policy = lambda s: jnp.array([0.25, 0.2, 0.0])  # noqa: E731
-    t_lift, dt = params.start_duration, 1e-3
-    state = gait_lib.init_gait(params, psp, jnp.array([0.0, 0.0, 1.06]), feet)
-    zero = jnp.zeros(3)
-    state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
+    psp, policy, feet, state, t_lift, dt = _lifted_off(params)
     nominal = float(state.step_duration)
     side = float(state.lateral_sign) * jnp.array([0.0, 1.0, 0.0])  # towards the swing side
     for k in range(40, 80):
