@@ -97,9 +97,10 @@ class GaitParams:
     """Step timing adaptation: bounds on the lateral DCM ``y + yd / omega`` (stance frame,
     m) at touch-down, (inwards, past the stance foot; outwards, towards the swing side).
     The PSP times a step by the sagittal orbits, so after a lateral push it can plan a
-    touch-down long after the lateral DCM has run out of reach (measured after a 520 N
-    push: 1.9 m at the planned touch-down, 0.7 s ahead). A step planned to land later
-    than the LIPM's DCM reaches its bound lands then, on the capture step (below)."""
+    touch-down long after the lateral DCM has run out of reach (after a 520 N push, the
+    LIPM predicted 1.9 m at a touch-down planned 0.69 s ahead, from a traced state). A
+    step planned to land later than the LIPM's DCM reaches its bound lands then, on the
+    capture step (below)."""
     step_x_range: tuple[float, float] = (-0.45, 0.65)
     step_y_range: tuple[float, float] = (0.12, 0.6)
     """Kinematic limits of a footstep in the stance frame (m): every planned or fallback
