@@ -1,6 +1,7 @@
 """Locomotion: swing splines, quaternion slerp, the gait's references, walking and pushes
 on MuJoCo, and MJX against MuJoCo's C engine."""
 
+import dataclasses
 import json
 
 import jax
@@ -309,6 +310,49 @@ def test_step_timing_adaptation_bounds_the_lateral_dcm_at_touchdown():
     assert int(state.replans) >= 1
     assert int(state.last_reason) & int(Reason.STEP_SHORTENED)
     assert float(state.step_duration) < nominal
+
+
+def test_step_timing_adaptation_bounds_the_com_lead():
+    """``com_lead_time_limit`` is when the LIPM's CoM runs ``max_com_lead`` ahead of the
+    stance foot (checked by numerical integration: the crossing is outward), 0 when it is out
+    and leaving, never when it does not diverge forward; a replan after a forward push is
+    shortened by it, with the lateral bound out of the way."""
+    psp = PSPParams()
+    params = GaitParams(max_lateral_dcm=(4.9, 4.9))
+    w, lead = psp.omega, params.max_com_lead
+    for x0, v0 in ((0.0, 0.8), (-0.1, 0.9), (0.25, -0.5), (0.3, -0.8)):
+        rel, vel = jnp.asarray([x0, 0.0]), jnp.asarray([v0, 0.0])
+        t_max = float(gait_lib.com_lead_time_limit(params, w, rel, vel))
+        assert 0 < t_max < params.max_step_duration
+        sol = solve_ivp(
+            lambda _, x: [x[1], w**2 * x[0]], (0, t_max), [x0, v0], rtol=1e-11, atol=1e-12
+        )
+        assert sol.y[0, -1] == pytest.approx(lead, rel=1e-6)
+        assert sol.y[1, -1] > 0  # crossing outwards
+    out = gait_lib.com_lead_time_limit(params, w, jnp.asarray([0.25, 0.0]), jnp.asarray([0.1, 0]))
+    assert float(out) == 0.0
+    back = gait_lib.com_lead_time_limit(params, w, jnp.asarray([-0.3, 0.0]), jnp.asarray([0.5, 0]))
+    assert float(back) == params.max_step_duration
+    # Walking: a CoM 3 cm ahead of its reference and 0.3 m/s fast replans; with the bound
+    # lowered to 8 cm that replan is shortened, with the default it is not.
+    touchdown = {}
+    for bound in (params.max_com_lead, 0.08):
+        params = dataclasses.replace(params, max_com_lead=bound)
+        psp, policy, feet, state, t_lift, dt = _lifted_off(params)
+        ahead = jnp.array([jnp.cos(state.heading), jnp.sin(state.heading), 0.0])
+        for k in range(40, 80):
+            t = t_lift + k * dt
+            pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
+            state = gait_lib.advance(
+                state, params, psp, policy, t, pos + 0.03 * ahead, vel + 0.3 * ahead, feet, dt
+            )
+        assert int(state.replans) >= 1
+        shortened = bool(int(state.last_reason) & int(Reason.STEP_SHORTENED))
+        assert shortened == (bound == 0.08)
+        touchdown[bound] = float(state.step_start + state.step_duration)
+    assert touchdown[0.08] < touchdown[GaitParams().max_com_lead] - 0.03
+    with pytest.raises(ValueError, match="max_com_lead"):
+        GaitParams(max_com_lead=0.0)
 
 
 # --- pushes -----------------------------------------------------------------------------
