@@ -318,7 +318,7 @@ def test_step_timing_adaptation_bounds_the_com_lead():
     and leaving, never when it does not diverge forward; a replan after a forward push is
     shortened by it, with the lateral bound out of the way."""
     psp = PSPParams()
-    params = GaitParams(max_lateral_dcm=(4.9, 4.9))
+    params = GaitParams(max_lateral_dcm=(4.9, 4.9), max_com_lead=0.2)
     w, lead = psp.omega, params.max_com_lead
     for x0, v0 in ((0.0, 0.8), (-0.1, 0.9), (0.25, -0.5), (0.3, -0.8)):
         rel, vel = jnp.asarray([x0, 0.0]), jnp.asarray([v0, 0.0])
@@ -336,7 +336,7 @@ def test_step_timing_adaptation_bounds_the_com_lead():
     # Walking: a CoM 3 cm ahead of its reference and 0.3 m/s fast replans; with the bound
     # lowered to 8 cm that replan is shortened, with the default it is not.
     touchdown = {}
-    for bound in (params.max_com_lead, 0.08):
+    for bound in (GaitParams().max_com_lead, 0.08):
         params = dataclasses.replace(params, max_com_lead=bound)
         psp, policy, feet, state, t_lift, dt = _lifted_off(params)
         ahead = jnp.array([jnp.cos(state.heading), jnp.sin(state.heading), 0.0])
