@@ -232,6 +232,20 @@ def _lifted_off(params):
     return psp, policy, feet, state, t_lift, dt
 
 
+def _pushed_after_lift_off(params, direction, offset, speed):
+    """The gait 40-80 ms after its first lift-off, fed a CoM ``offset`` m off its reference
+    and ``speed`` m/s faster along ``direction(state)`` (a unit 3-vector) every tick."""
+    psp, policy, feet, state, t_lift, dt = _lifted_off(params)
+    d = direction(state)
+    for k in range(40, 80):
+        t = t_lift + k * dt
+        pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
+        state = gait_lib.advance(
+            state, params, psp, policy, t, pos + offset * d, vel + speed * d, feet, dt
+        )
+    return state
+
+
 def test_a_foot_landing_late_does_not_lift_the_next_steps():
     """At the planned touch-down the landing foot is still 5 cm up (it lands late after a
     push): the new stance frame keeps the planned landing height, so the next footstep and
@@ -298,15 +312,10 @@ def test_step_timing_adaptation_bounds_the_lateral_dcm_at_touchdown():
         bound = params.max_lateral_dcm[1] if xi > 0 else params.max_lateral_dcm[0]
         assert abs(xi) == pytest.approx(bound, rel=1e-7)
     # Walking: a CoM 8 cm off its reference and running sideways at 0.8 m/s replans.
-    psp, policy, feet, state, t_lift, dt = _lifted_off(params)
-    nominal = float(state.step_duration)
-    side = float(state.lateral_sign) * jnp.array([0.0, 1.0, 0.0])  # towards the swing side
-    for k in range(40, 80):
-        t = t_lift + k * dt
-        pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
-        state = gait_lib.advance(
-            state, params, psp, policy, t, pos + 0.08 * side, vel + 0.8 * side, feet, dt
-        )
+    nominal = float(_lifted_off(params)[3].step_duration)
+    state = _pushed_after_lift_off(
+        params, lambda s: s.lateral_sign * jnp.array([0.0, 1.0, 0.0]), 0.08, 0.8
+    )
     assert int(state.replans) >= 1
     assert int(state.last_reason) & int(Reason.STEP_SHORTENED)
     assert float(state.step_duration) < nominal
@@ -338,14 +347,8 @@ def test_step_timing_adaptation_bounds_the_com_lead():
     touchdown = {}
     for bound in (GaitParams().max_com_lead, 0.08):
         params = dataclasses.replace(params, max_com_lead=bound)
-        psp, policy, feet, state, t_lift, dt = _lifted_off(params)
-        ahead = jnp.array([jnp.cos(state.heading), jnp.sin(state.heading), 0.0])
-        for k in range(40, 80):
-            t = t_lift + k * dt
-            pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
-            state = gait_lib.advance(
-                state, params, psp, policy, t, pos + 0.03 * ahead, vel + 0.3 * ahead, feet, dt
-            )
+        ahead = lambda s: jnp.array([jnp.cos(s.heading), jnp.sin(s.heading), 0.0])  # noqa: E731
+        state = _pushed_after_lift_off(params, ahead, 0.03, 0.3)
         assert int(state.replans) >= 1
         shortened = bool(int(state.last_reason) & int(Reason.STEP_SHORTENED))
         assert shortened == (bound == 0.08)
