@@ -237,12 +237,18 @@ def _pushed_after_lift_off(params, direction, offset, speed):
     and ``speed`` m/s faster along ``direction(state)`` (a unit 3-vector) every tick."""
     psp, policy, feet, state, t_lift, dt = _lifted_off(params)
     d = direction(state)
-    for k in range(40, 80):
-        t = t_lift + k * dt
+
+    # One compile: op by op these ticks took minutes, and a worker that ran them later
+    # aborted in an XLA compile ("LLVM compilation error: Cannot allocate memory" seen).
+    @jax.jit
+    def tick(state, t):
         pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
-        state = gait_lib.advance(
+        return gait_lib.advance(
             state, params, psp, policy, t, pos + offset * d, vel + speed * d, feet, dt
         )
+
+    for k in range(40, 80):
+        state = tick(state, jnp.asarray(t_lift + k * dt))
     return state
 
 
