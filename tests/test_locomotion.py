@@ -238,8 +238,9 @@ def _pushed_after_lift_off(params, direction, offset, speed):
     psp, policy, feet, state, t_lift, dt = _lifted_off(params)
     d = direction(state)
 
-    # One compile: op by op these ticks took minutes, and a worker that ran them later
-    # aborted in an XLA compile ("LLVM compilation error: Cannot allocate memory" seen).
+    # One compile. Op by op these ticks took minutes; the pytest worker that ran them then
+    # aborted in a later test's XLA compile, and op-by-op runs outside pytest logged "LLVM
+    # compilation error: Cannot allocate memory".
     @jax.jit
     def tick(state, t):
         pos, vel, _ = gait_lib.com_reference(state, params, psp, t)
