@@ -349,6 +349,12 @@ def test_step_timing_adaptation_bounds_the_com_lead():
     assert float(out) == 0.0
     back = gait_lib.com_lead_time_limit(params, w, jnp.asarray([-0.3, 0.0]), jnp.asarray([0.5, 0]))
     assert float(back) == params.max_step_duration
+    # Gradients stay finite in every branch (crossing, staying out, never reaching).
+    for x0, v0 in ((0.0, 0.8), (0.25, -0.5), (-0.3, 0.5)):
+        g = jax.grad(lambda r, v: gait_lib.com_lead_time_limit(params, w, r, v), (0, 1))(
+            jnp.asarray([x0, 0.0]), jnp.asarray([v0, 0.0])
+        )
+        assert all(bool(jnp.all(jnp.isfinite(x))) for x in g)
     # Walking: a CoM 3 cm ahead of its reference and 0.3 m/s fast replans; with the bound
     # lowered to 8 cm that replan is shortened, with the default it is not.
     touchdown = {}

@@ -105,7 +105,7 @@ class GaitParams:
     max_com_lead: float = 0.18
     """Step timing adaptation, sagittal: the farthest the CoM may run ahead of the stance
     foot (stance frame, m) before touch-down. On our model the stance ankle reaches its
-    dorsiflexion limit (-0.93 rad) with the CoM 0.16-0.2 m ahead (traced after 520 N
+    dorsiflexion limit (-0.93 rad) with the CoM 0.15-0.2 m ahead (traced after 520 N
     pushes); the heel then lifts, the flat-foot contact constraint no longer holds and the
     robot pitches over. Undisturbed walking lands with the CoM 0.15-0.17 m ahead. A step
     planned to land after the LIPM's CoM passes this bound lands then, on the capture step.
@@ -438,12 +438,13 @@ def com_lead_time_limit(params: GaitParams, w, rel, vel):
     a = 0.5 * (rel[0] + vel[0] / w)
     b = 0.5 * (rel[0] - vel[0] / w)
     disc = lead * lead - 4.0 * a * b
+    # Safe operands, so the branches not taken give zero gradients, not 0 * inf = NaN.
     safe_a = jnp.where(a > 0, a, 1.0)
-    u = (lead + jnp.sqrt(jnp.maximum(disc, 0.0))) / (2.0 * safe_a)
-    t = jnp.log(jnp.maximum(u, 1.0)) / w
-    # disc < 0 with a > 0: the CoM stays beyond the bound; a <= 0: it never diverges forward.
+    root = jnp.sqrt(jnp.where(disc > 0, disc, 1.0))
+    t = jnp.log(jnp.maximum((lead + root) / (2.0 * safe_a), 1.0)) / w
+    # disc <= 0 with a > 0: the CoM stays beyond the bound; a <= 0: it never diverges forward.
     never = jnp.asarray(params.max_step_duration, rel.dtype)
-    return jnp.where(a > 0, jnp.where(disc < 0, 0.0, t), never)
+    return jnp.where(a > 0, jnp.where(disc > 0, t, 0.0), never)
 
 
 def _plan(
