@@ -15,6 +15,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from jaxloco.dynamics import se3
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
+from jaxloco.learning.checkpoint import load_planner
 from jaxloco.locomotion import GaitParams, make_swing, make_walking_controller, retarget_swing
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.swing import KNOTS
@@ -150,6 +151,8 @@ def test_gait_params_reject_bad_values():
         GaitParams(contact_blend=0.0)
     with pytest.raises(ValueError, match="Push.duration"):
         Push(duration=0.0)
+    with pytest.raises(ValueError, match=r"com_height must be in \[0.5, 1.2\]"):
+        GaitParams(com_height=1.5)
 
 
 def test_quintic_meets_its_boundary_conditions():
@@ -425,7 +428,20 @@ def test_walks_a_few_steps_and_recovers_a_push_ci_sized(walker):
     assert np.max(o["com_error"][~before]) > np.max(o["com_error"][before])  # the push is felt
     # Upright: the CoM keeps its reference height (the pelvis itself bobs by +-3 cm a step).
     assert np.max(np.abs(o["com"][:, 2] - o["com_ref"][:, 2])) < 0.02
+    walking = res.log.time > ctrl.gait_params.start_duration + 0.5
+    np.testing.assert_allclose(o["com_ref"][walking, 2], ctrl.gait_params.com_height, atol=0.01)
     assert np.min(res.log.qpos[:, 2]) > 0.9
+
+
+def test_walking_controller_plans_at_the_gait_com_height(walker):
+    """``GaitParams.com_height`` replaces the planner's LIPM height; None keeps the height
+    the policy was trained at."""
+    model, ctrl = walker
+    trained = load_planner()
+    assert ctrl.psp.h == GaitParams().com_height != trained.psp.h
+    assert ctrl.psp.omega == pytest.approx(np.sqrt(9.81 / GaitParams().com_height))
+    kept = make_walking_controller(model, gait=GaitParams(com_height=None), planner=trained)
+    assert kept.psp == trained.psp
 
 
 def test_cam_reference_is_the_momentum_of_the_commanded_turn_and_the_arm_return(walker):

@@ -19,7 +19,8 @@ the swing side; :mod:`jaxloco.planner.steering`), carried along its LIPM orbit t
 the PSP gives the footstep and the switch time (Algorithm 2). The foot placed by step k
 starts the frame of step k+1, turned by the commanded heading change ``turns[k]`` (Fig. 11).
 The CoM reference is the LIPM's analytic solution about the stance foot (Eq. 35), at a
-constant height ``psp.h`` above it.
+constant height ``psp.h`` above it (the walking controller sets it to
+``GaitParams.com_height``).
 
 **Replanning** (Eq. 33-34). When ``|[x_d - x; 0.5 (xd_d - xd)]|`` (horizontal CoM) stays
 above ``replan_threshold`` for longer than ``replan_delay`` during a swing, the step is
@@ -49,6 +50,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
+from typing import Optional
 
 import jax
 import jax.numpy as jnp
@@ -149,6 +151,15 @@ class GaitParams:
     serves several speeds."""
     replan_min_remaining: float = 0.08
     """No replanning this close to the planned touch-down (s): the foot is landing."""
+    com_height: Optional[float] = 0.985  # noqa: UP045 (OmegaConf needs typing.Optional)
+    """Walking CoM height above the stance foot (m): the LIPM height of the gait's CoM
+    reference and of the planner at run time (``make_walking_controller`` sets ``psp.h``).
+    None: the height the step policy was trained at (``psp.h``, 1.005294). The authors'
+    runtime planner used the measured CoM height (1.07 at our walking keyframe, knee 0.6
+    rad), but a crouch reaches farther with the swing foot: on issue 7's 40 pushes of 520 N
+    (C backend) 0.965 / 0.985 / 1.005 / 1.035 / 1.06 recovered 36 / 40 / 39 / 31 / 20, and
+    over 320 pushes (steps 4 and 5, noisy starts) 0.985 recovered 314 against 308 at 1.005
+    (11 only at 0.985, 5 only at 1.005)."""
     arm_return_rate: float = 2.0
     """Rate (1/s) at which the CAM reference brings the arms back to their posture (see
     ``walking._cam_reference``): the arms serve as momentum actuators, and without it they
@@ -199,6 +210,10 @@ class GaitParams:
             "replan_gamma": (0 <= self.replan_gamma <= 1, "in [0, 1]"),
             "replan_min_remaining": (self.replan_min_remaining >= 0, ">= 0"),
             "arm_return_rate": (0 <= self.arm_return_rate < 100, "in [0, 100)"),
+            "com_height": (
+                self.com_height is None or 0.5 <= self.com_height <= 1.2,
+                "in [0.5, 1.2] m (or None)",
+            ),
         }
         for name, (ok, rule) in checks.items():
             value = getattr(self, name)

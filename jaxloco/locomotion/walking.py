@@ -176,13 +176,18 @@ def make_walking_controller(
     """A walking controller for ``model`` (Valkyrie): WBLC ``config`` (default: the walking
     hierarchy), gait numbers and the step ``planner`` (default: the shipped RL-PSP policy).
     ``keyframe_qpos`` sets the joint postures the posture tasks hold (default: the model's
-    ``walk`` keyframe)."""
+    ``walk`` keyframe). The planner walks at ``gait.com_height`` (its ``psp.h`` is replaced
+    unless that is None)."""
     from jaxloco.control.presets import VALKYRIE_FEET
     from jaxloco.dynamics.model import keyframe_qpos as key_qpos
 
     config = walking_config() if config is None else config
     gait = GaitParams() if gait is None else gait
     planner = load_planner() if planner is None else planner
+    if gait.com_height is not None:
+        # The policy's apex states and actions are in metres and m/s; only the LIPM's
+        # omega changes with the height, and the PSP plans with it at run time.
+        planner = planner.replace(psp=dataclasses.replace(planner.psp, h=gait.com_height))
     wblc = make_wblc(model, config)
     qpos0 = key_qpos(model, "walk") if keyframe_qpos is None else np.asarray(keyframe_qpos)
     posture = wblc.hold_references(jnp.asarray(qpos0))
