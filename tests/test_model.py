@@ -133,6 +133,22 @@ def test_contacts_are_only_soles_on_the_floor(model):
         assert got == want
 
 
+def test_force_qp_points_lie_on_the_sole(model):
+    """The force QP may put all of a foot's load on any of its contact points, so each must
+    lie on the sole, inside the footprint of the 4 sole spheres (else the QP asks for a
+    centre of pressure beyond the sole's edge and the foot rolls over it)."""
+    for side in ("left", "right"):
+        spheres = np.array([model.geom(f"{side}_sole{k}").pos for k in range(4)])
+        low, high = spheres[:, :2].min(axis=0), spheres[:, :2].max(axis=0)
+        sole_bottom = spheres[0, 2] - model.geom(f"{side}_sole0").size[0]
+        foot = model.geom(f"{side}_sole0").bodyid[0]
+        points = np.array([model.site(s).pos for s in CONTACT_SITES[side]])
+        assert all(model.site(s).bodyid[0] == foot for s in CONTACT_SITES[side])
+        np.testing.assert_allclose(points[:, 2], sole_bottom, atol=1e-9)
+        inset = np.minimum(points[:, :2] - low, high - points[:, :2])
+        np.testing.assert_allclose(inset, 0.01, atol=1e-9)  # 1 cm inside every edge
+
+
 def test_committed_xml_is_what_the_generator_writes(tmp_path):
     script = assets_dir() / "valkyrie" / "build_valkyrie.py"
     spec = importlib.util.spec_from_file_location("build_valkyrie", script)

@@ -17,10 +17,11 @@ Modelling choices (not in the figures):
   C 36). Sphere-plane contacts are the same
   on both; flat on the floor, the 4 spheres touch where the box's corners did.
 - Near-zero inertias (the 0.03 kg ankle-pitch link) are set to 1e-5 kg m^2.
-- Each foot carries sites at its centre of pressure and at the 4 contact corners used by
-  the force QP (+-0.10 m, +-0.05 m around the CoP frame). The authors' CoP frame sits 9.7 mm
-  above the sole; here the sites lie on the sole surface (z = -0.088 below the ankle), so
-  the contact points touch the ground.
+- Each foot carries sites at its centre of pressure and at the 4 contact points used by
+  the force QP, 1 cm inside the sole's bottom corners, so the whole sole carries load (the
+  authors' points, +-0.10 m, +-0.05 m around the CoP frame, reach 12 mm past this sole's
+  heel). The authors' CoP frame sits 9.7 mm above the sole; here the sites lie on the sole
+  surface (z = -0.088 below the ankle), so the contact points touch the ground.
 - Right-side joint ranges mirror hipYaw, hipRoll, shoulderRoll and elbowPitch (the axes
   are the same on both sides); the others are equal.
 - The walking keyframe (hip pitch -0.3, knee 0.6, ankle pitch -0.3, arms lowered) places
@@ -140,9 +141,21 @@ SOLE_SIZE = (0.27, 0.16, 0.064)
 SOLE_CENTRE = (0.066, 0.0, -0.056)
 SOLE_Z = -0.088
 COP = (0.0189, 0.0)
-CORNERS = [(0.10, 0.05), (0.10, -0.05), (-0.10, 0.05), (-0.10, -0.05)]
+FORCE_POINT_INSET = 0.01
+"""The force QP's 4 contact points per foot sit this far inside the sole's bottom corners
+(m). The authors' points (+-0.10, +-0.05 around the CoP frame) reach 12 mm behind this
+sole's heel: a QP that loads them asks for a centre of pressure the foot cannot give, and
+the foot rolls onto its heel (traced after a 520 N push from 225 deg)."""
 SOLE_SPHERE_RADIUS = 0.005
 """Contact spheres at the sole box's bottom corners (m)."""
+
+
+def force_points() -> list[tuple[float, float]]:
+    """(x, y) of the force QP's contact points in the foot frame, ``FORCE_POINT_INSET``
+    inside the sole's corners, in the order (+x +y), (+x -y), (-x +y), (-x -y)."""
+    cx, cy, _ = SOLE_CENTRE
+    hx, hy = SOLE_SIZE[0] / 2 - FORCE_POINT_INSET, SOLE_SIZE[1] / 2 - FORCE_POINT_INSET
+    return [(cx + sx * hx, cy + sy * hy) for sx in (1, -1) for sy in (1, -1)]
 
 
 def sole_corner_spheres() -> list[tuple[float, float, float]]:
@@ -246,8 +259,8 @@ def leg(w: Writer, side: str):
                     f'pos="{fmt(corner)}" class="sole"/>'
                 )
             w.add(f'<site name="{prefix}_foot_cop" pos="{fmt((*COP, SOLE_Z))}" size="0.01"/>')
-            for k, (dx, dy) in enumerate(CORNERS):
-                pos = (COP[0] + dx, COP[1] + dy, SOLE_Z)
+            for k, (x, y) in enumerate(force_points()):
+                pos = (x, y, SOLE_Z)
                 w.add(f'<site name="{prefix}_foot_contact{k}" pos="{fmt(pos)}" size="0.008"/>')
         elif name == "hipYaw":
             w.add(f'<geom type="sphere" size="0.07" rgba="{COLORS["limb"]}" class="visual"/>')
