@@ -159,7 +159,9 @@ class GaitParams:
     rad), but a crouch reaches farther with the swing foot: on issue 7's 40 pushes of 520 N
     (C backend) 0.965 / 0.985 / 1.005 / 1.035 / 1.06 recovered 36 / 40 / 39 / 31 / 20, and
     over 320 pushes (steps 4 and 5, noisy starts) 0.985 recovered 314 against 308 at 1.005
-    (11 only at 0.985, 5 only at 1.005)."""
+    (11 only at 0.985, 5 only at 1.005). Those ran with the authors' force-QP points; with
+    the model's points now (session 22), steps 4 and 5 gave 80/80 at 0.985, 78/80 at
+    1.005."""
     arm_return_rate: float = 2.0
     """Rate (1/s) at which the CAM reference brings the arms back to their posture (see
     ``walking._cam_reference``): the arms serve as momentum actuators, and without it they
