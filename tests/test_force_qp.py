@@ -1,5 +1,7 @@
 """Unrolled ADMM and the contact-force QP against a trusted QP solver (quadprog, float64)."""
 
+import dataclasses
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -256,3 +258,16 @@ def test_warm_started_closed_loop_settings_track_the_cold_solution():
     _, warm = jax.jit(lambda s: jax.lax.scan(tick, zero_warm_start(8), s))(seq)
     assert not bool(jnp.any(cold.relaxed)) and not bool(jnp.any(warm.relaxed))
     np.testing.assert_allclose(warm.forces[1:], cold.forces[1:], atol=1e-3)
+
+
+def test_unroll_changes_speed_not_the_forces(contact_batch):
+    """``ForceQPParams.unroll`` (ADMM iterations per loop trip) is a speed knob only."""
+    problems, _refs, sol = contact_batch
+    batch = [jnp.asarray(np.stack(z)) for z in zip(*problems[:64], strict=True)]
+    for unroll in (2, 5):
+        params = dataclasses.replace(ForceQPParams(), unroll=unroll)
+        other = jax.jit(jax.vmap(lambda *a, p=params: solve_contact_forces(*a, params=p)))(*batch)
+        np.testing.assert_allclose(np.asarray(other.forces), np.asarray(sol.forces[:64]), atol=1e-6)
+        np.testing.assert_array_equal(np.asarray(other.relaxed), np.asarray(sol.relaxed[:64]))
+    with pytest.raises(ValueError, match="unroll"):
+        ForceQPParams(unroll=0)

@@ -59,7 +59,7 @@ def solve_qp(
     alpha: float = 1.6,
     adapt_every: int = 25,
     warm_start: ADMMState | None = None,
-    unroll: int = 5,
+    unroll: int = 1,
     a_ops: tuple | None = None,
 ) -> ADMMResult:
     """Run ``iterations`` ADMM steps on the QP (see the module doc).
@@ -67,8 +67,9 @@ def solve_qp(
     Every ``adapt_every`` iterations ``rho`` is rescaled to balance the normalised primal
     and dual residuals (OSQP's rule) and the small KKT matrix is refactored: badly scaled
     problems (e.g. a heavily weighted soft task) then converge without tuning ``rho``.
-    ``adapt_every = 0`` keeps ``rho`` fixed. ``unroll``: iterations per loop trip
-    (XLA's per-trip overhead on CPU is comparable to one iteration's arithmetic).
+    ``adapt_every = 0`` keeps ``rho`` fixed. ``unroll``: iterations per loop trip, a
+    speed knob that leaves the numbers as they are; under ``vmap`` on XLA:CPU more
+    unrolling ran slower (measurements at :class:`~jaxloco.control.force_qp.ForceQPParams`).
     ``a_ops``: optional ``(x -> A x, y -> A' y)`` exploiting A's structure inside the
     iterations (A stays dense for the factorisation and the residuals).
     """

@@ -52,6 +52,11 @@ class ForceQPParams:
     rho: float = 1.0
     adapt_every: int = 25
     """Rescale rho every this many iterations (0: fixed rho); see admm.solve_qp."""
+    unroll: int = 1
+    """ADMM iterations per loop trip (``lax.scan``'s ``unroll``). The same numbers
+    whatever the value; only the speed changes. Measured on this 2-core VM for a batch of
+    64 closed-loop problems (``vmap``, 200 iterations + 2 polish steps, both cones): 376-397 us
+    per problem at 1, 408 at 2, 466-507 at 5, 1283 at 25."""
     polish: bool = True
     """Finish with an active-set polish (admm.polish): exact on the tail of badly
     conditioned cases where ADMM alone is slow."""
@@ -72,6 +77,8 @@ class ForceQPParams:
             raise ValueError(
                 f"ForceQPParams: need 0 <= fz_min < fz_max; got {self.fz_min}, {self.fz_max}"
             )
+        if self.unroll < 1:
+            raise ValueError(f"ForceQPParams.unroll must be >= 1; got {self.unroll}")
         if self.iterations < 1 or self.rho <= 0 or self.force_scale <= 0:
             raise ValueError("ForceQPParams: iterations >= 1, rho > 0 and force_scale > 0 required")
         if self.polish_steps < 1:
@@ -183,6 +190,7 @@ def _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz_max, warm):
         params.rho,
         adapt_every=params.adapt_every,
         warm_start=warm,
+        unroll=params.unroll,
         a_ops=constraint_ops(points.shape[0], mu),
     )
     if params.polish:
