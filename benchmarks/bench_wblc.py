@@ -5,7 +5,11 @@ force QP's accuracy against quadprog by iteration count, and PlaCo's C++ whole-b
 
 The tick is the walking hierarchy in double support (``jaxloco.control.presets``), float32,
 called as users call it: ``jax.jit`` of ``WBLC.__call__`` from Python. Stages are timed as
-separate jitted functions on the same state to show what bounds the time. The peer, when
+separate jitted functions on the same state to show what bounds the time, and, batched
+as sweeps run it, by ablation: the whole vmapped tick with its stages replaced, one more at a
+time, by stand-ins of the same shapes (the force QP by an equal share of the net force, the
+task hierarchy by zeros, the torque pseudo-inverse by a scaled identity), so the differences
+are what each stage costs inside the real tick. The peer, when
 ``placo`` and ``example-robot-data`` are installed (``pip install -e .[bench]``), is
 PlaCo's ``DynamicsSolver`` on the Talos humanoid (nv = 38): two foot contacts, CoM, trunk
 orientation and joint posture, one ``solve(True)`` per tick.
@@ -13,6 +17,7 @@ orientation and joint posture, one ``solve(True)`` per tick.
 
 from __future__ import annotations
 
+import contextlib
 import subprocess
 import sys
 import time
@@ -28,7 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from _common import compile_seconds, parse_args, print_table, time_calls, write_json  # noqa: E402
 
-from jaxloco.control import force_qp  # noqa: E402
+from jaxloco.control import force_qp, hierarchy  # noqa: E402
+from jaxloco.control import wblc as wblc_module  # noqa: E402
 from jaxloco.control.presets import walking_config  # noqa: E402
 from jaxloco.control.wblc import make_wblc  # noqa: E402
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie  # noqa: E402
@@ -74,6 +80,71 @@ def stage_functions(ctrl, refs):
         "dynamics snapshot (A, b, g, J_cm, Jdot qd)": snapshot,
         "snapshot + all tasks": tasks,
     }, qp_only
+
+
+def _qp_stand_in(points, in_contact, com, f_lin, f_ang, params, fz_max=None, warm_start=None):
+    n = points.shape[0]
+    zero = jnp.zeros((), points.dtype)
+    forces = jnp.zeros((n, 3), points.dtype) + f_lin / n
+    return force_qp.ForceQPSolution(forces, f_ang, zero, zero, zero, zero > 0, warm_start)
+
+
+def _hierarchy_stand_in(jacs, cmds, mass_inv, rtol, whiten):
+    nv = mass_inv.shape[0]
+    # Touch every input so that nothing upstream is dead code.
+    qdd = jnp.zeros((nv, cmds[0].shape[1])) + sum(jnp.sum(j) for j in jacs) * 0 + cmds[0][0]
+    return hierarchy.HierarchyResult(qdd, jnp.eye(nv) * mass_inv[0, 0], tuple(cmds))
+
+
+def ablation_rows(ctrl, refs, q, batch: int, repeats: int) -> list[dict]:
+    """The vmapped tick with stages replaced by stand-ins, cumulatively (see module doc)."""
+    from unittest import mock
+
+    contact = jnp.ones(2, jnp.float32)
+    qb = jnp.broadcast_to(q, (batch, q.shape[0]))
+    vb = jnp.asarray(np.random.default_rng(1).normal(0, 0.1, (batch, ctrl.mx.nv)), jnp.float32)
+    prev = ctrl.initial_qp_state(jnp.float32)
+    pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
+    patches = [
+        ("force QP", mock.patch.object(wblc_module.force_qp, "solve_contact_forces", _qp_stand_in)),
+        (
+            "task hierarchy",
+            mock.patch.object(wblc_module, "prioritized_accelerations", _hierarchy_stand_in),
+        ),
+        (
+            "torque pseudo-inverse (Eq. 19)",
+            mock.patch.object(
+                wblc_module, "pinv_psd", lambda m, rtol: jnp.eye(m.shape[0]) * m[0, 0]
+            ),
+        ),
+    ]
+    rows, removed = [], []
+
+    def measure(label):
+        fn = jax.jit(jax.vmap(lambda q, v, p: ctrl(q, v, refs, contact, previous=p)))
+        compile_seconds(fn, qb, vb, pb)
+        t = time_calls(fn, qb, vb, pb, repeats=repeats)
+        rows.append(dict(case=label, per_tick_us=t["median_s"] / batch * 1e6))
+
+    measure(f"vmap batch {batch}: whole tick")
+    with contextlib.ExitStack() as stack:
+        for name, patch in patches:
+            stack.enter_context(patch)
+            removed.append(name)
+            measure(f"vmap batch {batch}: without " + ", ".join(removed))
+    snap = jax.jit(jax.vmap(ctrl.snapshot))
+    compile_seconds(snap, qb, vb)
+    t = time_calls(snap, qb, vb, repeats=repeats)
+    rows.append(
+        dict(
+            case=f"vmap batch {batch}: dynamics snapshot alone",
+            per_tick_us=t["median_s"] / batch * 1e6,
+        )
+    )
+    whole = rows[0]["per_tick_us"]
+    for r in rows:
+        r["share_of_tick"] = r["per_tick_us"] / whole
+    return rows
 
 
 def qp_accuracy_table(n: int) -> list[dict]:
@@ -233,6 +304,7 @@ def main():
                     ticks_per_s=1 / peer["median_s"],
                 )
             )
+        ablation = ablation_rows(ctrl, refs, q, 64, max(3, repeats // 3))
         accuracy = qp_accuracy_table(200 if args.quick else 1000)
     base = rows[0]["per_tick_us"]
     for r in rows:
@@ -255,6 +327,15 @@ def main():
     else:
         print(f"ours / PlaCo per tick: {rows[0]['ours_over_peer']:.2f}")
     print_table(
+        "Batched tick by ablation: stages replaced by stand-ins, cumulatively (float32)",
+        ablation,
+        [
+            ("case", "case", "s"),
+            ("per_tick_us", "us/robot-tick", ".1f"),
+            ("share_of_tick", "share of whole tick", ".2f"),
+        ],
+    )
+    print_table(
         "Force QP vs quadprog (float64), by ADMM iterations",
         accuracy,
         [
@@ -270,7 +351,13 @@ def main():
     write_json(
         args.json,
         "bench_wblc",
-        {"quick": args.quick, "rows": rows, "qp_accuracy": accuracy, "peer": peer},
+        {
+            "quick": args.quick,
+            "rows": rows,
+            "ablation": ablation,
+            "qp_accuracy": accuracy,
+            "peer": peer,
+        },
     )
 
 

@@ -3,6 +3,7 @@
     jaxloco push-sweep                                       # default sweep (~10 min, 2 cores)
     jaxloco push-sweep 'sweep.magnitudes=[300,520,700]' 'sweep.phases=[0.2,0.5,0.8]'
     jaxloco push-sweep backend=mjx chunk_size=32             # MJX instead of MuJoCo C
+    jaxloco push-sweep workers=1                             # one process (default: one per core)
     jaxloco push-sweep sweep.mode=random sweep.num_random=256 'sweep.seeds=[0,1]'
     jaxloco push-sweep hydra.run.dir=outputs/my_sweep        # run again: resumes
     jaxloco push-sweep gains_file=outputs/tune/tuned_gains.json   # tuned gains and gamma
@@ -48,7 +49,10 @@ class PushSweepConfig:
     """``c`` (MuJoCo C batch, the CPU default: measured faster here) or ``mjx``."""
     chunk_size: int = 16
     nthread: int = 0
-    """Threads of the C backend (0: all cores)."""
+    """Threads of the C backend (0: all cores); with several workers, each uses one."""
+    workers: int = 0
+    """Processes running chunks side by side, each on its own core (C backend; 0: one per
+    core, 1: one process). The same results for any number (``jaxloco.sweep.workers``)."""
     max_chunks: int = 0
     """Stop after this many new chunks (0: run all); run again to go on."""
     pinv_rtol: float = 1e-2
@@ -87,6 +91,7 @@ def main(cfg) -> None:
             ),
             config=OmegaConf.to_container(cfg, resolve=True),
             max_chunks=cfg.max_chunks or None,
+            workers=cfg.workers,
         )
     summary = write_report(out_dir, dpi=cfg.dpi)
     for name, v in summary["variants"].items():

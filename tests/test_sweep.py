@@ -163,6 +163,35 @@ def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, 
         np.testing.assert_allclose(a.outcomes[k], b.outcomes[k], rtol=1e-5, err_msg=k)
 
 
+def test_worker_processes_give_the_single_process_outcomes(tmp_path):
+    """Two worker processes (one per core, one chunk each) give the outcomes of one process
+    running the same chunks, bit for bit, and the run is recorded in the manifest."""
+    from jaxloco.sweep import run_sweep
+
+    spec = SweepSpec(**CI_SPEC)
+    one = run_sweep(spec, tmp_path / "one", backend="c", chunk_size=1, progress=False)
+    two = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2)
+    assert two.complete.all()
+    for k in FIELDS:
+        np.testing.assert_array_equal(two.outcomes[k], one.outcomes[k], err_msg=k)
+    run = two.manifest["runs"][0]
+    assert run["workers"] == 2 and run["chunks"] == [0, 1]
+    assert run["overall_env_steps_per_s"] > 0
+    # Nothing left to do: a second call resumes and starts no worker.
+    again = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2)
+    assert len(again.manifest["runs"]) == 1
+
+
+def test_workers_are_validated(tmp_path):
+    from jaxloco.sweep import run_sweep
+
+    spec = SweepSpec(**CI_SPEC)
+    with pytest.raises(ValueError, match="workers must be >= 0"):
+        run_sweep(spec, tmp_path / "a", workers=-1, progress=False)
+    with pytest.raises(ValueError, match="backend='mjx'"):
+        run_sweep(spec, tmp_path / "b", backend="mjx", workers=2, progress=False)
+
+
 def test_walk_snapshots_round_trip_through_disk(tmp_path):
     from jaxloco.sweep.starts import WalkSnapshots, load_snapshots, save_snapshots
 

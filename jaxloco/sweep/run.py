@@ -10,7 +10,8 @@ virtual CPU devices in one process (``tests/test_sweep.py``); not run on several
 :func:`run_sweep` is what ``jaxloco push-sweep`` calls. Each chunk of ``chunk_size`` pushes
 is one batched backend call (the last chunk is padded with copies of its last push, so every
 call has the same shape and compiles once); its outcomes are written before the next chunk
-starts (:mod:`.store`), and a second call on the same directory resumes.
+starts (:mod:`.store`), and a second call on the same directory resumes. On one host the C
+backend can run chunks in several processes, one per core (``workers``, :mod:`.workers`).
 """
 
 from __future__ import annotations
@@ -43,6 +44,7 @@ from jaxloco.sweep.starts import (
     walk_key,
 )
 from jaxloco.sweep.store import SweepStore
+from jaxloco.sweep.workers import available_cores, run_in_workers
 
 BACKENDS = ("c", "mjx")
 
@@ -75,6 +77,7 @@ def run_sweep(
     config: dict | None = None,
     progress: bool = True,
     max_chunks: int | None = None,
+    workers: int = 1,
 ) -> SweepResult:
     """Run (or resume) the sweep ``spec`` into ``run_dir``.
 
@@ -84,11 +87,25 @@ def run_sweep(
     ``physics``: the simulated robot's solver settings and torque limit (default
     :class:`PhysicsParams`).
     ``wblc``: the controller's WBLC configuration (default: the walking preset).
+    ``workers``: processes running chunks side by side, each pinned to its own core (C
+    backend only; see :mod:`.workers`); 0 means one per available core (C) or 1 (MJX). The
+    results are the same for any number of workers.
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}; got {backend!r}")
     if chunk_size < 1:
         raise ValueError(f"chunk_size must be >= 1; got {chunk_size}")
+    if workers < 0:
+        raise ValueError(f"workers must be >= 0 (0: one per core); got {workers}")
+    if workers == 0:
+        workers = len(available_cores()) if backend == "c" else 1
+    if workers > 1 and backend != "c":
+        raise ValueError(
+            f"workers > 1 runs the C backend in several processes; got backend={backend!r} "
+            "(MJX shards a chunk across JAX devices instead)"
+        )
+    if workers > 1 and jax.process_count() > 1:
+        raise ValueError("workers > 1 is for one host; a multi-host run uses jax.distributed")
     gait = GaitParams() if gait is None else gait
     physics = PhysicsParams() if physics is None else physics
     devices = jax.devices()
@@ -124,7 +141,13 @@ def run_sweep(
     todo = [i for i in range(len(chunks)) if not store.done(i)]
     if max_chunks is not None:
         todo = todo[:max_chunks]
-    if todo:
+    workers = min(workers, len(todo))
+    if workers > 1:
+        run_in_workers(
+            spec, store, table, chunks, todo, backend, chunk_size, gait, physics, wblc,
+            push_body, workers, progress,
+        )  # fmt: skip
+    elif todo:
         _run_chunks(
             spec, store, table, chunks, todo, backend, chunk_size, gait, physics, wblc,
             push_body, nthread, progress,
@@ -133,10 +156,19 @@ def run_sweep(
     return SweepResult(table, outcomes, have, store.read_manifest(), store.dir)
 
 
-def _run_chunks(
-    spec, store, table, chunks, todo, backend, chunk_size, gait, physics, wblc, push_body,
-    nthread, progress,
-):  # fmt: skip
+@dataclasses.dataclass
+class _ChunkContext:
+    """What running chunks needs: the model, the controller, the start snapshots."""
+
+    model: object
+    runner: object
+    snapshots: dict
+    horizon_steps: int
+    walks_s: float
+
+
+def _prepare(spec, store, table, chunks, todo, backend, gait, physics, wblc, push_body, nthread,
+             progress, make_runner=True):  # fmt: skip
     t_start = time.perf_counter()
     model = load_valkyrie()
     sim_model = physics_model(model, physics) if physics is not None else model
@@ -170,11 +202,54 @@ def _run_chunks(
             save_snapshots(path, snapshots[key])
     t_walks = time.perf_counter() - t_start
 
-    if backend == "c":
+    runner = None
+    if make_runner and backend == "c":
         runner = CBatchBackend(sim_model, ctrl, body, spec.fall_height, nthread)
-    else:
+    elif make_runner:
         runner = MJXBackend(sim_model, ctrl, body, spec.fall_height, horizon_steps)
+    return _ChunkContext(model, runner, snapshots, horizon_steps, t_walks)
 
+
+def _chunk_starts(ctx, spec, table, rows, chunk_size) -> ChunkStarts:
+    """The start states of a chunk's runs, padded to ``chunk_size`` with its last push."""
+    model = ctx.model
+    padded = np.concatenate([rows, np.full(chunk_size - len(rows), rows[-1])])
+    times, phys, cstate = gather_starts(
+        table, padded, ctx.snapshots, spec.qvel_noise, model.nq, model.nv
+    )
+    heading = np.asarray(cstate.gait.heading, float)
+    pushes = np.stack(
+        [
+            table["magnitude"][padded],
+            heading + np.radians(table["direction_deg"][padded]),
+            times,
+            table["duration"][padded],
+        ],
+        axis=1,
+    )
+    return ChunkStarts(times, phys, cstate, pushes)
+
+
+def _run_one_chunk(ctx, spec, store, table, rows, index, chunk_size, tick_progress=None):
+    """Run chunk ``index`` (its ``rows``), write it, return its outcome columns."""
+    starts = _chunk_starts(ctx, spec, table, rows, chunk_size)
+    outcome = ctx.runner.run(starts, ctx.horizon_steps, progress=tick_progress)
+    cols = finalize(outcome, spec.steps_after)
+    cols = {k: v[: len(rows)] for k, v in cols.items()}
+    store.write_chunk(index, rows, cols)
+    return cols
+
+
+def _run_chunks(
+    spec, store, table, chunks, todo, backend, chunk_size, gait, physics, wblc, push_body,
+    nthread, progress,
+):  # fmt: skip
+    t_start = time.perf_counter()
+    ctx = _prepare(
+        spec, store, table, chunks, todo, backend, gait, physics, wblc, push_body, nthread,
+        progress,
+    )  # fmt: skip
+    horizon_steps = ctx.horizon_steps
     done_rows = sum(len(chunks[i]) for i in range(len(chunks)) if store.done(i))
     recovered = attempted = 0
     bar = tqdm(
@@ -189,28 +264,9 @@ def _run_chunks(
 
     for index in todo:
         rows = chunks[index]
-        padded = np.concatenate([rows, np.full(chunk_size - len(rows), rows[-1])])
-        times, phys, cstate = gather_starts(
-            table, padded, snapshots, spec.qvel_noise, model.nq, model.nv
-        )
-        heading = np.asarray(cstate.gait.heading, float)
-        pushes = np.stack(
-            [
-                table["magnitude"][padded],
-                heading + np.radians(table["direction_deg"][padded]),
-                times,
-                table["duration"][padded],
-            ],
-            axis=1,
-        )
         t0 = time.perf_counter()
         steps_before = steps_done[0]
-        outcome = runner.run(
-            ChunkStarts(times, phys, cstate, pushes), horizon_steps, progress=tick_progress
-        )
-        cols = finalize(outcome, spec.steps_after)
-        cols = {k: v[: len(rows)] for k, v in cols.items()}
-        store.write_chunk(index, rows, cols)
+        cols = _run_one_chunk(ctx, spec, store, table, rows, index, chunk_size, tick_progress)
         elapsed = time.perf_counter() - t0
         chunk_times.append(elapsed)
         recovered += int(cols["recovered"].sum())
@@ -229,7 +285,7 @@ def _run_chunks(
     manifest["runs"].append(
         {
             "chunks": list(todo),
-            "undisturbed_walks_s": t_walks,
+            "undisturbed_walks_s": ctx.walks_s,
             "first_chunk_s": chunk_times[0],
             "first_chunk_env_steps_per_s": chunk_size * horizon_steps / chunk_times[0],
             "steady_chunk_s": steady,
