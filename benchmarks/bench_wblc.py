@@ -304,7 +304,7 @@ def main():
                     ticks_per_s=1 / peer["median_s"],
                 )
             )
-        ablation = ablation_rows(ctrl, refs, q, 64, max(3, repeats // 3))
+        ablation = ablation_rows(ctrl, refs, q, 64, repeats)
         accuracy = qp_accuracy_table(200 if args.quick else 1000)
     base = rows[0]["per_tick_us"]
     for r in rows:
