@@ -3,7 +3,7 @@
     jaxloco push-sweep                                       # default sweep (~10 min, 2 cores)
     jaxloco push-sweep 'sweep.magnitudes=[300,520,700]' 'sweep.phases=[0.2,0.5,0.8]'
     jaxloco push-sweep backend=mjx chunk_size=32             # MJX instead of MuJoCo C
-    jaxloco push-sweep workers=1                             # one process (default: one per core)
+    jaxloco push-sweep workers=1                             # one process (default: per core)
     jaxloco push-sweep sweep.mode=random sweep.num_random=256 'sweep.seeds=[0,1]'
     jaxloco push-sweep hydra.run.dir=outputs/my_sweep        # run again: resumes
     jaxloco push-sweep gains_file=outputs/tune/tuned_gains.json   # tuned gains and gamma
@@ -52,7 +52,8 @@ class PushSweepConfig:
     """Threads of the C backend (0: all cores); with several workers, each uses one."""
     workers: int = 0
     """Processes running chunks side by side, each on its own core (C backend; 0: one per
-    core, 1: one process). The same results for any number (``jaxloco.sweep.workers``)."""
+    core when there is enough work, at least 50 simulated robot-seconds each, else 1). The
+    same results for any number (``jaxloco.sweep.workers``)."""
     max_chunks: int = 0
     """Stop after this many new chunks (0: run all); run again to go on."""
     pinv_rtol: float = 1e-2

@@ -192,6 +192,16 @@ def test_workers_are_validated(tmp_path):
         run_sweep(spec, tmp_path / "b", backend="mjx", workers=2, progress=False)
 
 
+def test_automatic_workers_need_enough_work_to_pay_for_their_start(monkeypatch):
+    import jaxloco.sweep.run as sweep_run
+
+    monkeypatch.setattr(sweep_run, "available_cores", lambda: [0, 1, 2, 3])
+    assert sweep_run._auto_workers("c", 8.0) == 1  # bench_sweep's 8 pushes x 1 s
+    assert sweep_run._auto_workers("c", 100.0) == 2
+    assert sweep_run._auto_workers("c", 1e4) == 4  # never more than the cores
+    assert sweep_run._auto_workers("mjx", 1e4) == 1
+
+
 def test_walk_snapshots_round_trip_through_disk(tmp_path):
     from jaxloco.sweep.starts import WalkSnapshots, load_snapshots, save_snapshots
 

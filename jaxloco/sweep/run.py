@@ -88,8 +88,9 @@ def run_sweep(
     :class:`PhysicsParams`).
     ``wblc``: the controller's WBLC configuration (default: the walking preset).
     ``workers``: processes running chunks side by side, each pinned to its own core (C
-    backend only; see :mod:`.workers`); 0 means one per available core (C) or 1 (MJX). The
-    results are the same for any number of workers.
+    backend only; see :mod:`.workers`); 0 chooses: one per available core when each gets
+    enough work to pay for its start (:func:`_auto_workers`), else 1. The results are the
+    same for any number of workers.
     """
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}; got {backend!r}")
@@ -97,8 +98,7 @@ def run_sweep(
         raise ValueError(f"chunk_size must be >= 1; got {chunk_size}")
     if workers < 0:
         raise ValueError(f"workers must be >= 0 (0: one per core); got {workers}")
-    if workers == 0:
-        workers = len(available_cores()) if backend == "c" else 1
+    auto_workers = workers == 0
     if workers > 1 and backend != "c":
         raise ValueError(
             f"workers > 1 runs the C backend in several processes; got backend={backend!r} "
@@ -141,6 +141,8 @@ def run_sweep(
     todo = [i for i in range(len(chunks)) if not store.done(i)]
     if max_chunks is not None:
         todo = todo[:max_chunks]
+    if auto_workers:
+        workers = _auto_workers(backend, sum(len(chunks[i]) for i in todo) * spec.horizon)
     workers = min(workers, len(todo))
     if workers > 1:
         run_in_workers(
@@ -156,9 +158,24 @@ def run_sweep(
     return SweepResult(table, outcomes, have, store.read_manifest(), store.dir)
 
 
+# A worker process takes ~10-15 s to start (imports, controller, walks from disk, the tick
+# from the compile cache; session 24). Measured on 2 cores: two workers lost on sweeps of 8
+# robot-seconds (39 s against 31 s cached) and won on 100 (the 40-push criterion sweep) and
+# 160 (`make run`: 2 min 06 s against 3 min 45 s).
+_ROBOT_SECONDS_PER_WORKER = 50.0
+
+
+def _auto_workers(backend: str, robot_seconds: float) -> int:
+    """Workers for ``workers=0``: one per core, but at most one per 50 simulated
+    robot-seconds of remaining work; always 1 on MJX."""
+    if backend != "c":
+        return 1
+    return max(1, min(len(available_cores()), int(robot_seconds // _ROBOT_SECONDS_PER_WORKER)))
+
+
 @dataclasses.dataclass
 class _ChunkContext:
-    """What running chunks needs: the model, the controller, the start snapshots."""
+    """What running chunks needs: the model, the backend runner, the start snapshots."""
 
     model: object
     runner: object
