@@ -80,3 +80,26 @@ def test_phase_portrait_full_defaults(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     plans = json.loads((tmp_path / "run" / "plans.json").read_text())
     assert plans["steering_walk"]["safe_steps"] == 29
+
+
+def test_push_sweep_config_carries_the_walking_force_qp():
+    """``jaxloco push-sweep force_qp.FIELD=...`` reaches the walking WBLC; its defaults are
+    the walking preset's (so existing run directories keep resuming)."""
+    import importlib.util
+
+    from jaxloco.cli import experiments_dir
+    from jaxloco.control.force_qp import ForceQPParams
+    from jaxloco.control.presets import CLOSED_LOOP_QP
+
+    spec = importlib.util.spec_from_file_location("push_sweep", experiments_dir() / "push_sweep.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    cfg = OmegaConf.structured(module.PushSweepConfig)
+    assert to_params(ForceQPParams, cfg.force_qp) == CLOSED_LOOP_QP
+    cfg.force_qp.iterations = 100
+    cfg.force_qp.relaxed_on_demand = True
+    qp = to_params(ForceQPParams, cfg.force_qp)
+    assert qp.iterations == 100 and qp.relaxed_on_demand
+    cfg.force_qp.relaxed_slots = 0
+    with pytest.raises(ValueError, match="relaxed_slots"):
+        to_params(ForceQPParams, cfg.force_qp)

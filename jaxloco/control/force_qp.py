@@ -74,13 +74,14 @@ class ForceQPParams:
     relaxed_on_demand: bool = False
     """Solve the relaxed cone only where the nominal one failed, instead of both every time.
     Under ``vmap`` the failed problems of the batch are gathered into ``relaxed_slots``
-    slots (all of them when more fail) and nothing is solved when none did: in the walking
-    sweeps the cone was relaxed at ~0.25% of robot-ticks, and a batch-64 tick took 418
-    instead of 630-653 us per robot with the relaxed solve gone (session 25). Each robot's
-    result does not depend on the rest of its batch. Its warm start is the previous
+    slots (the whole batch when more fail), and nothing is solved when none did. Each
+    robot's result does not depend on the rest of its batch. Its warm start is the previous
     relaxed solution if the previous tick relaxed, else the previous nominal one. Not
-    reverse-differentiable (``jax.custom_batching.custom_vmap``): keep it off where
-    gradients are taken."""
+    reverse-differentiable (``jax.custom_batching.custom_vmap``): the tuning problems turn
+    it off. Off by default: measured in session 25 (C backend, 2 workers), issue 7's 40-push
+    step-4 sweep took 44.5 s instead of 50.2 s (-11%; the cone was relaxed at ~0.2-0.4% of
+    robot-ticks) but recovered 38/40 against 40/40; the batch-64 double-support tick of
+    ``bench_wblc.py`` took 418 against 630-653 us per robot."""
     relaxed_slots: int = 8
     """``relaxed_on_demand``: relaxed problems solved as one gathered batch per tick."""
 
