@@ -80,8 +80,9 @@ class ForceQPParams:
     reverse-differentiable (``jax.custom_batching.custom_vmap``): the tuning problems turn
     it off. Off by default: measured in session 25 (C backend, 2 workers), issue 7's 40-push
     step-4 sweep took 44.5 s instead of 50.2 s (-11%; the cone was relaxed at ~0.2-0.4% of
-    robot-ticks) but recovered 38/40 against 40/40; the batch-64 double-support tick of
-    ``bench_wblc.py`` took 418 against 630-653 us per robot."""
+    robot-ticks) but recovered 38/40 against 40/40. ``bench_wblc.py --quick``: one jitted
+    tick 2,075 against 3,151 us, but the batch-64 tick 939 against 929 us per robot (no gain;
+    not traced; a stand-in without any relaxed solve had given 418 against 630-653)."""
     relaxed_slots: int = 8
     """``relaxed_on_demand``: relaxed problems solved as one gathered batch per tick."""
 
