@@ -49,8 +49,7 @@ class PushSweepConfig:
     physics: PhysicsSchema = field(default_factory=PhysicsSchema)
     force_qp: ForceQPSchema = field(default_factory=ForceQPSchema)
     """The walking WBLC's contact-force QP (defaults: ``presets.CLOSED_LOOP_QP``), e.g.
-    ``force_qp.iterations=100`` or ``force_qp.relaxed_on_demand=true`` (faster; measured in
-    the README's session 25 notes)."""
+    ``force_qp.iterations=200``."""
     backend: str = "c"
     """``c`` (MuJoCo C batch, the CPU default: measured faster here) or ``mjx``."""
     chunk_size: int = 16

@@ -96,10 +96,10 @@ def test_push_sweep_config_carries_the_walking_force_qp():
     spec.loader.exec_module(module)
     cfg = OmegaConf.structured(module.PushSweepConfig)
     assert to_params(ForceQPParams, cfg.force_qp) == CLOSED_LOOP_QP
-    cfg.force_qp.iterations = 100
-    cfg.force_qp.relaxed_on_demand = True
+    cfg.force_qp.iterations = 300
+    cfg.force_qp.rho = 0.1
     qp = to_params(ForceQPParams, cfg.force_qp)
-    assert qp.iterations == 100 and qp.relaxed_on_demand
-    cfg.force_qp.relaxed_slots = 0
-    with pytest.raises(ValueError, match="relaxed_slots"):
+    assert qp.iterations == 300 and qp.rho == 0.1
+    cfg.force_qp.alpha = 2.5
+    with pytest.raises(ValueError, match="alpha"):
         to_params(ForceQPParams, cfg.force_qp)

@@ -1,29 +1,35 @@
-"""The reaction-force QP of WBLC (paper Eq. 14-15), solved by unrolled ADMM.
+"""The reaction-force QP of WBLC (paper Eq. 14-15), solved by unrolled consensus ADMM.
 
 For contact points ``p_i`` (3-D force ``f_i`` each) around the centre of mass ``c``::
 
     min  sum_i w_t (fx^2 + fy^2) + w_n fz^2 + w_ang |F_ang_des - W_ang f|^2
     s.t. W_lin f = F_lin_des                    (linear CoM behaviour: hard)
-         |fx|, |fy| <= mu fz                    (friction pyramid)
-         fz_min <= fz <= fz_max, |fx|, |fy| <= ft_max     (points in contact)
-         f = 0                                  (points not in contact)
+         f_i in C_i:  |fx|, |fy| <= mu fz,  fz_min <= fz <= fz_max_i,  |fx|, |fy| <= ft_max
+         f_i = 0                                (points not in contact)
 
 with ``W_lin f = sum f_i`` and ``W_ang f = sum (p_i - c) x f_i``. Weights and bounds default
-to the authors' (``shared/reference/paper-details.md``). When the pyramid with ``mu`` cannot
-be met (the constraint violation after the iterations exceeds ``tolerance``), the solution
-with ``mu_relaxed`` (1.75, as the paper) is used instead and ``relaxed`` is set. The achieved
-angular part ``W_ang f`` is returned for Eq. 15. By default both cones are solved every time,
-as one ``vmap``-ed batch of two (the choice is made after the fact); with
-``relaxed_on_demand`` the relaxed cone is solved only where the nominal one failed (see
-:func:`_relaxed_where_needed`). Shapes are static (a fixed number of points with an
-``in_contact`` mask), so the solver batches with ``vmap``.
+to the authors' (``shared/reference/paper-details.md``).
 
-ADMM alone converges slowly on the badly conditioned cases (the 5000-weighted angular
-term); :func:`admm.polish` finishes every solve with a few active-set steps. Against
-quadprog on 1000 random feasible single and double support problems, 400 iterations plus
-polish give a largest relative objective error of ~5e-14 and cone violations ~5e-13 N
-(``tests/test_force_qp.py``; the accuracy-vs-iterations table is in
-``benchmarks/bench_wblc.py``).
+**Which cone.** The moment is soft, so the QP is feasible exactly when the net force can be
+split over the points within their sets. Every pyramid is the same world-aligned one, so
+that is a closed-form test on the net force (:func:`net_force_feasible`): ``Fz`` within the
+sum of the normal-force bounds and ``max(|Fx|, |Fy|) <= mu min(Fz, sum_i min(fz_max_i,
+ft_max / mu))``. When it fails with ``mu`` the QP is solved with ``mu_relaxed`` (1.75, as the
+paper) and ``relaxed`` is set; when it fails even then, ``infeasible`` is set and the forces
+are the best split within the relaxed sets (the net force is missed by ``linear_residual``).
+One cone is solved per call, and the choice does not depend on how far the iterations got.
+
+**Splitting.** ADMM on ``f = z`` (Boyd et al., 2011, consensus form): the ``f``-step is the
+equality-constrained QP of the objective plus ``rho/2 |f - z + u|^2``, an affine map of
+``z - u`` fixed for the call (``M (z - u) + c``, formed once by Woodbury from the diagonal
+weights and the rank-3 moment term, with the net force as a 3-row equality); the ``z``-step
+is each point's Euclidean projection onto ``C_i``, in closed form (:func:`project_point`).
+So an iteration is one 3n x 3n mat-vec and a few elementwise operations, batches well under
+``vmap``, and differentiates through ``lax.scan``. The returned forces are the projected
+iterate ``z``: they meet the cone and bounds exactly, and the net force within
+``linear_residual``. Variables are in units of ``force_scale`` newtons, ordered
+coordinate-major (all ``x``, all ``y``, all ``z``) so that each component is a contiguous
+row.
 """
 
 from __future__ import annotations
@@ -33,58 +39,36 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 from flax import struct
-from jax.custom_batching import custom_vmap
-
-from jaxloco.control import admm
-from jaxloco.dynamics import se3
-
-_BIG = 1e9
 
 
 @dataclasses.dataclass(frozen=True)
 class ForceQPParams:
     mu: float = 0.65
+    """Friction coefficient of the nominal pyramid."""
     mu_relaxed: float = 1.75
+    """The relaxed pyramid, used when the nominal one cannot carry the net force."""
     fz_min: float = 5.0
+    """Least normal force of a point in contact (N)."""
     fz_max: float = 3000.0
+    """Largest normal force of a point in contact (N); ``fz_max`` per point overrides it."""
     ft_max: float = 1000.0
+    """Largest tangential force per axis (N)."""
     weight_tangential: float = 1.0
     weight_normal: float = 0.5
     weight_angular: float = 5000.0
-    iterations: int = 400
-    rho: float = 1.0
-    adapt_every: int = 25
-    """Rescale rho every this many iterations (0: fixed rho); see admm.solve_qp."""
-    unroll: int = 1
-    """ADMM iterations per loop trip (``lax.scan``'s ``unroll``), for speed. It changes
-    the numbers only through XLA's float32 round-off: on 64 cold problems 1, 2 and 5 gave
-    the same forces bit for bit, 25 forces up to 34 N apart. Measured on a 2-core VM for
-    a batch of 64 problems (``vmap``, 200 iterations + 2 polish steps, both cones):
-    376-397 us per problem at 1, 408 at 2, 466-507 at 5, 1283 at 25."""
-    polish: bool = True
-    """Finish with an active-set polish (admm.polish): exact on the tail of badly
-    conditioned cases where ADMM alone is slow."""
-    polish_steps: int = 4
-    """Active-set steps of the polish (each one Cholesky of the constraint-sized Schur
-    complement); warm-started closed loops need fewer."""
+    iterations: int = 500
+    """ADMM iterations (unrolled). The default is for a cold start: against quadprog on
+    1000 random single and double support problems every objective is within 1e-3 relative
+    (``tests/test_force_qp.py``); a warm-started closed loop needs far fewer
+    (``presets.CLOSED_LOOP_QP``)."""
+    rho: float = 0.04
+    """ADMM penalty, relative to the objective's mean diagonal (which the moment term
+    dominates). Measured on 300 cold random problems (float64, 200 iterations): 0.04 gave
+    the most within 1e-3 of quadprog (99.3%), 0.02 93%, 0.1 94%, 1.0 78%."""
+    alpha: float = 1.6
+    """Over-relaxation of the ``z``-step (1: none; OSQP's default 1.6)."""
     force_scale: float = 100.0
     """Forces are solved in units of this many newtons (conditioning)."""
-    tolerance: float = 1e-3
-    """Constraint violation (N) above which the solution counts as not meeting the cone."""
-    relaxed_on_demand: bool = False
-    """Solve the relaxed cone only where the nominal one failed, instead of both every time.
-    Under ``vmap`` the failed problems of the batch are gathered into ``relaxed_slots``
-    slots (the whole batch when more fail), and nothing is solved when none did. Each
-    robot's result does not depend on the rest of its batch. Its warm start is the previous
-    relaxed solution if the previous tick relaxed, else the previous nominal one. Not
-    reverse-differentiable (``jax.custom_batching.custom_vmap``): the tuning problems turn
-    it off. Off by default: measured in session 25 (C backend, 2 workers), issue 7's 40-push
-    step-4 sweep took 44.5 s instead of 50.2 s (-11%; the cone was relaxed at ~0.2-0.4% of
-    robot-ticks) but recovered 38/40 against 40/40. ``bench_wblc.py --quick``: one jitted
-    tick 2,075 against 3,151 us, but the batch-64 tick 939 against 929 us per robot (no gain;
-    not traced; a stand-in without any relaxed solve had given 418 against 630-653)."""
-    relaxed_slots: int = 8
-    """``relaxed_on_demand``: relaxed problems solved as one gathered batch per tick."""
 
     def __post_init__(self):
         if not 0 < self.mu < self.mu_relaxed:
@@ -95,214 +79,193 @@ class ForceQPParams:
             raise ValueError(
                 f"ForceQPParams: need 0 <= fz_min < fz_max; got {self.fz_min}, {self.fz_max}"
             )
-        if self.unroll < 1:
-            raise ValueError(f"ForceQPParams.unroll must be >= 1; got {self.unroll}")
-        if self.iterations < 1 or self.rho <= 0 or self.force_scale <= 0:
-            raise ValueError("ForceQPParams: iterations >= 1, rho > 0 and force_scale > 0 required")
-        if self.polish_steps < 1:
-            raise ValueError(f"ForceQPParams.polish_steps must be >= 1; got {self.polish_steps}")
-        if self.relaxed_slots < 1:
-            raise ValueError(f"ForceQPParams.relaxed_slots must be >= 1; got {self.relaxed_slots}")
+        if not self.mu_relaxed * self.fz_min <= self.ft_max:
+            raise ValueError(
+                "ForceQPParams: need mu_relaxed * fz_min <= ft_max (the least normal force "
+                f"must allow its own friction); got {self.mu_relaxed} * {self.fz_min} > "
+                f"{self.ft_max}"
+            )
+        if self.iterations < 1:
+            raise ValueError(f"ForceQPParams.iterations must be >= 1; got {self.iterations}")
+        if not self.rho > 0:
+            raise ValueError(f"ForceQPParams.rho must be > 0; got {self.rho}")
+        if not 0 < self.alpha < 2:
+            raise ValueError(f"ForceQPParams.alpha must be in (0, 2); got {self.alpha}")
+        if not self.force_scale > 0:
+            raise ValueError(f"ForceQPParams.force_scale must be > 0; got {self.force_scale}")
+        for name in ("weight_tangential", "weight_normal", "weight_angular"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"ForceQPParams.{name} must be > 0; got {getattr(self, name)}")
+
+
+@struct.dataclass
+class ForceQPState:
+    """ADMM's iterate, passed back as ``warm_start`` next tick (units of ``force_scale``)."""
+
+    z: jax.Array
+    """(3, n) projected forces, rows ``x, y, z`` components."""
+    u: jax.Array
+    """(3, n) scaled dual of ``f = z``."""
 
 
 @struct.dataclass
 class ForceQPSolution:
     forces: jax.Array
-    """(n, 3) contact forces (N), world frame."""
+    """(n, 3) contact forces (N), world frame; within each point's set exactly."""
     angular: jax.Array
-    """(3,) achieved W_ang f: the CAM rate the forces produce (Eq. 15)."""
+    """(3,) achieved W_ang f (N m): the CAM rate the forces produce (Eq. 15)."""
     linear_residual: jax.Array
-    """max |W_lin f - F_lin_des| (N)."""
-    violation: jax.Array
-    """Largest violation of the cone and bounds actually used (N)."""
-    dual_residual: jax.Array
+    """``max |W_lin f - F_lin_des|`` (N): the net force missed."""
+    primal_residual: jax.Array
+    """``max |f - z|`` (N) between ADMM's two iterates: how far from converged."""
     relaxed: jax.Array
-    """True when mu_relaxed was needed."""
-    warm_start: tuple
-    """ADMM states (mu, mu_relaxed) to pass back next tick."""
+    """True when the nominal pyramid cannot carry the net force and ``mu_relaxed`` was
+    used."""
+    infeasible: jax.Array
+    """True when not even the relaxed pyramid can: ``linear_residual`` is then large."""
+    warm_start: ForceQPState
+    """Pass back next tick."""
 
 
-def build_qp(points, in_contact, com, f_lin, f_ang, mu, params: ForceQPParams, fz_max=None):
-    """The QP in scaled force units ``f / force_scale``: ``(P, q, A, l, u, W_ang)``.
+def zero_warm_start(num_points: int, dtype=None) -> ForceQPState:
+    """The ``warm_start`` of a first solve."""
+    zero = jnp.zeros((3, num_points), dtype or jnp.zeros(()).dtype)
+    return ForceQPState(zero, zero)
 
-    Rows of ``A``: 3 equalities ``W_lin f = F_lin``, 4 pyramid rows per point, then the
-    bounds of every force component. The objective is divided by its mean diagonal (same
-    minimiser) so that one ADMM penalty suits all configurations.
+
+def net_force_feasible(f_lin, in_contact, fz_max, mu, params: ForceQPParams):
+    """Whether the points in contact can carry the net force ``f_lin`` (N) within their
+    pyramids ``mu`` and bounds (see the module doc; exact for world-aligned pyramids)."""
+    on = in_contact.astype(f_lin.dtype)
+    fz_lo = params.fz_min * jnp.sum(on)
+    fz_hi = jnp.sum(on * fz_max)
+    # Most tangential force per axis for a normal force Fz: each point gives
+    # mu * min(fz_i, ft_max / mu); the Fz beyond the caps' sum adds nothing.
+    capped = jnp.sum(on * jnp.minimum(fz_max, params.ft_max / mu))
+    tangential = mu * jnp.minimum(f_lin[2], capped)
+    return (
+        (f_lin[2] >= fz_lo)
+        & (f_lin[2] <= fz_hi)
+        & (jnp.maximum(jnp.abs(f_lin[0]), jnp.abs(f_lin[1])) <= tangential)
+        & (jnp.sum(on) > 0)
+    )
+
+
+def project_point(fx, fy, fz, fz_lo, fz_hi, mu, ft_max):
+    """Euclidean projection of forces ``(fx, fy, fz)`` (elementwise arrays) onto
+    ``{|x|, |y| <= min(mu z, ft_max), fz_lo <= z <= fz_hi}``.
+
+    For a fixed ``z`` the best ``x`` is ``clip(fx, -cap, cap)`` with ``cap = min(mu z,
+    ft_max)``, so ``z`` minimises the convex piecewise quadratic ``(z - fz)^2 + sum_k
+    max(|f_k| - min(mu z, ft_max), 0)^2`` over ``[fz_lo, fz_hi]``. Component ``k`` pulls on
+    ``z`` while ``z < beta_k = min(|f_k|, ft_max) / mu``; on the three pieces the stationary
+    points are ``z_2`` (both pull), ``z_1`` (the one with the larger ``beta``) and ``fz``,
+    and the unconstrained minimiser is ``max(min(z_2, beta_lo), min(z_1, beta_hi), fz)``
+    (the derivative is continuous and non-decreasing). No comparisons of objective values,
+    so the result does not depend on round-off in them.
     """
-    n = points.shape[0]
+    ax, ay = jnp.abs(fx), jnp.abs(fy)
+    beta_x, beta_y = jnp.minimum(ax, ft_max) / mu, jnp.minimum(ay, ft_max) / mu
+    beta_lo, beta_hi = jnp.minimum(beta_x, beta_y), jnp.maximum(beta_x, beta_y)
+    a_hi = jnp.where(beta_x >= beta_y, ax, ay)
+    z_2 = (fz + mu * (ax + ay)) / (1.0 + 2.0 * mu * mu)
+    z_1 = (fz + mu * a_hi) / (1.0 + mu * mu)
+    z_free = jnp.maximum(jnp.maximum(jnp.minimum(z_2, beta_lo), jnp.minimum(z_1, beta_hi)), fz)
+    z = jnp.clip(z_free, fz_lo, fz_hi)
+    cap = jnp.minimum(mu * z, ft_max)
+    return jnp.clip(fx, -cap, cap), jnp.clip(fy, -cap, cap), z
+
+
+def _inv3(m):
+    """Inverse of a 3x3 matrix by its adjugate: elementwise code, no LAPACK call (these
+    are symmetric positive definite here)."""
+    a, b, c = m[0]
+    d, e, f = m[1]
+    g, h, i = m[2]
+    cof = jnp.stack(
+        [
+            jnp.stack([e * i - f * h, c * h - b * i, b * f - c * e]),
+            jnp.stack([f * g - d * i, a * i - c * g, c * d - a * f]),
+            jnp.stack([d * h - e * g, b * g - a * h, a * e - b * d]),
+        ]
+    )
+    det = a * cof[0, 0] + b * cof[1, 0] + c * cof[2, 0]
+    return cof / det
+
+
+def affine_step(points, in_contact, com, f_lin, f_ang, params: ForceQPParams):
+    """The ADMM ``f``-step as ``f = M v + c`` (``v = z - u``, all ``(3n,)``, scaled units,
+    coordinate-major), and the moment map ``W_ang`` ``(3, 3n)``.
+
+    ``f`` minimises ``1/2 f'Pf + q'f + rho/2 |f - v|^2`` subject to ``W_lin f = F_lin / s``,
+    with ``P = 2 (D + w_ang W_ang' W_ang) / k`` (``k``: its mean diagonal, so that one
+    ``rho`` suits every configuration). ``G = (P + rho I)^-1`` is diagonal plus rank 3
+    (Woodbury) and the equality adds a 3 x 3 Schur complement: ``M = rho Pi``, ``c = -Pi q
+    + G W_lin' S^-1 e`` with ``Pi = G - G W_lin' S^-1 W_lin G``.
+    """
     dtype = points.dtype
+    n = points.shape[0]
     s = params.force_scale
-    w_ang = jnp.concatenate([se3.hat(points[i] - com) for i in range(n)], axis=1)  # (3, 3n)
-    diag = jnp.tile(
+    on = in_contact.astype(dtype)
+    r = (points - com) * on[:, None]  # points out of contact take no part
+    zero = jnp.zeros(n, dtype)
+    # Rows of W_ang (moment = sum r x f), coordinate-major columns [fx..., fy..., fz...].
+    w_ang = jnp.stack(
+        [
+            jnp.concatenate([zero, -r[:, 2], r[:, 1]]),
+            jnp.concatenate([r[:, 2], zero, -r[:, 0]]),
+            jnp.concatenate([-r[:, 1], r[:, 0], zero]),
+        ]
+    )
+    w_lin = jnp.kron(jnp.eye(3, dtype=dtype), on[None, :])  # (3, 3n)
+    weights = jnp.repeat(
         jnp.asarray(
             [params.weight_tangential, params.weight_tangential, params.weight_normal], dtype
         ),
         n,
     )
-    P = 2.0 * (jnp.diag(diag) + params.weight_angular * w_ang.T @ w_ang)
-    q = -2.0 * params.weight_angular * (w_ang.T @ f_ang) / s
-    scale = jnp.trace(P) / P.shape[0]
-    P, q = P / scale, q / scale
-
-    # Friction pyramid: 4 rows per point, (+-fx or +-fy) - mu fz <= 0.
-    pyramid_rows = jnp.asarray(
-        [[1, 0, -1], [-1, 0, -1], [0, 1, -1], [0, -1, -1]], dtype
-    ) * jnp.asarray([1.0, 1.0, mu], dtype)
-    pyramid = jnp.kron(jnp.eye(n, dtype=dtype), pyramid_rows)  # (4n, 3n)
-    lin = jnp.tile(jnp.eye(3, dtype=dtype), (1, n))  # W_lin (3, 3n)
-    A = jnp.concatenate([lin, pyramid, jnp.eye(3 * n, dtype=dtype)], axis=0)
-
-    fz_hi = jnp.full((n,), params.fz_max, dtype) if fz_max is None else jnp.asarray(fz_max, dtype)
-    active = in_contact.astype(dtype)
-    box_lo = jnp.stack(
-        [-params.ft_max * active, -params.ft_max * active, params.fz_min * active], -1
-    ).reshape(-1)
-    box_hi = jnp.stack(
-        [params.ft_max * active, params.ft_max * active, fz_hi * active], -1
-    ).reshape(-1)
-    # The equality rows take the very same numbers as both bounds: divided apart, XLA has
-    # rounded the two copies differently (1e-8 relative), the rows then failed the solvers'
-    # ``upper - lower < 1e-9`` equality test, and the polish, handling them as inequalities,
-    # was rejected on most float32 problems (session 25).
-    target = f_lin / s
-    lower = jnp.concatenate([target, jnp.full((4 * n,), -_BIG / s, dtype), box_lo / s])
-    # Points out of contact are pinned to zero by their bounds; their pyramid rows are left
-    # free so that no two active constraints are redundant (the polish needs that).
-    pyramid_hi = jnp.where(jnp.repeat(in_contact, 4), 0.0, _BIG / s)
-    upper = jnp.concatenate([target, pyramid_hi.astype(dtype), box_hi / s])
-    return P, q, A, lower, upper, w_ang
+    w = params.weight_angular
+    k = 2.0 * (jnp.mean(weights) + w * jnp.sum(r * r) * 2.0 / (3 * n))  # mean diag of P
+    rho = params.rho
+    d_rho = 2.0 * weights / k + rho  # diagonal of P + rho I without the moment term
+    wd = w_ang / d_rho  # W_ang D_rho^-1
+    # Woodbury: (D_rho + (2w/k) W'W)^-1 = D_rho^-1 - (W D_rho^-1)' K^-1 (W D_rho^-1).
+    kmat = (k / (2.0 * w)) * jnp.eye(3, dtype=dtype) + wd @ w_ang.T
+    g = jnp.diag(1.0 / d_rho) - wd.T @ _inv3(kmat) @ wd
+    q = -(2.0 * w / k) * (w_ang.T @ (f_ang / s))
+    g_lin = g @ w_lin.T  # (3n, 3)
+    # With no point in contact W_lin = 0: a floor keeps S invertible (f is then 0 anyway);
+    # in contact S is ~1e2 and the floor is below its round-off.
+    schur = w_lin @ g_lin + jnp.eye(3, dtype=dtype) * jnp.finfo(dtype).eps
+    schur_inv = _inv3(schur)
+    pi = g - g_lin @ schur_inv @ g_lin.T
+    return rho * pi, g_lin @ (schur_inv @ (f_lin / s)) - pi @ q, w_ang
 
 
-def zero_warm_start(num_points: int, dtype=None) -> tuple:
-    """The ``warm_start`` of a first solve: zero ADMM states for both cones (the QP has
-    ``3 n`` variables and ``7 n + 3`` rows for ``n`` contact points)."""
-    zero = admm.zero_state(3 * num_points, 7 * num_points + 3, dtype)
-    return (zero, zero)
+def admm(matrix, offset, fz_lo, fz_hi, mu, params: ForceQPParams, warm: ForceQPState):
+    """``params.iterations`` consensus ADMM steps from ``warm``; returns the new state and
+    the last ``f``-step (all scaled units)."""
+    n = fz_lo.shape[0]
+    alpha = params.alpha
+    ft_max = params.ft_max / params.force_scale
 
+    def f_step(z, u):
+        v = jnp.concatenate([zk - uk for zk, uk in zip(z, u, strict=True)])
+        return (matrix @ v + offset).reshape(3, n)
 
-def constraint_ops(n: int, mu):
-    """``(x -> A x, y -> A' y)`` for :func:`build_qp`'s ``A`` without forming it: the
-    sum of the forces, 4 pyramid rows per point and the identity of the bounds, O(n)
-    instead of the dense (7n + 3) x 3n products."""
+    def step(state, _):
+        # Rows kept apart (tuples), not one stacked array: stacked, XLA:CPU fused the
+        # projection into each consumer and computed it several times per element.
+        z, u = state
+        f = f_step(z, u)
+        v = tuple(alpha * f[k] + (1.0 - alpha) * z[k] + u[k] for k in range(3))
+        z_new = project_point(*v, fz_lo, fz_hi, mu, ft_max)
+        return (z_new, tuple(vk - zk for vk, zk in zip(v, z_new, strict=True))), None
 
-    def a_mul(x):
-        f = x.reshape(n, 3)
-        fx, fy, mfz = f[:, 0], f[:, 1], mu * f[:, 2]
-        pyramid = jnp.stack([fx - mfz, -fx - mfz, fy - mfz, -fy - mfz], axis=1)
-        return jnp.concatenate([jnp.sum(f, axis=0), pyramid.reshape(-1), x])
-
-    def at_mul(y):
-        lin, pyr, box = y[:3], y[3 : 3 + 4 * n].reshape(n, 4), y[3 + 4 * n :]
-        per_point = jnp.stack(
-            [pyr[:, 0] - pyr[:, 1], pyr[:, 2] - pyr[:, 3], -mu * jnp.sum(pyr, axis=1)], axis=1
-        )
-        return (per_point + lin).reshape(-1) + box
-
-    return a_mul, at_mul
-
-
-def _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz_max, warm):
-    P, q, A, lower, upper, w_ang = build_qp(
-        points, in_contact, com, f_lin, f_ang, mu, params, fz_max
-    )
-    result = admm.solve_qp(
-        P,
-        q,
-        A,
-        lower,
-        upper,
-        params.iterations,
-        params.rho,
-        adapt_every=params.adapt_every,
-        warm_start=warm,
-        unroll=params.unroll,
-        a_ops=constraint_ops(points.shape[0], mu),
-    )
-    if params.polish:
-        # Accept an exact KKT point that meets the constraints to within half the tolerance
-        # that decides relaxation, even where ADMM's rounder iterate met them more closely.
-        floor = 0.5 * params.tolerance / params.force_scale
-        result = admm.polish(
-            P, q, A, lower, upper, result, steps=params.polish_steps, violation_floor=floor
-        )
-    s = params.force_scale
-    # Points out of contact are bound to zero: return exact zeros, not ADMM's ~1e-13.
-    f = result.x * s * jnp.repeat(in_contact.astype(points.dtype), 3)
-    lin_res = jnp.max(jnp.abs(jnp.sum(f.reshape(-1, 3), axis=0) - f_lin))
-    # Cone and bounds, in newtons, on the forces themselves (not ADMM's internal copies).
-    af = A[3:] @ f
-    lo, hi = lower[3:] * s, upper[3:] * s
-    violation = jnp.maximum(jnp.max(jnp.maximum(af - hi, lo - af)), 0.0)
-    return (
-        f.reshape(-1, 3),
-        w_ang @ f,
-        lin_res,
-        jnp.maximum(violation, lin_res),
-        result.dual_residual,
-        result.state,
-    )
-
-
-def _relaxed_where_needed(params: ForceQPParams):
-    """``f(need, points, in_contact, com, f_lin, f_ang, fz_max, warm)``: :func:`_solve` with
-    ``mu_relaxed`` where ``need``, else zeros and ``warm`` unchanged.
-
-    One robot: a ``lax.cond``. Under ``vmap`` (a custom batching rule, since ``vmap`` would
-    turn the ``cond`` into a ``select`` that solves every problem): nothing when no problem
-    needs it, the needing ones gathered into ``relaxed_slots`` slots when they fit, the
-    whole batch otherwise. Every branch solves each problem by the same per-problem program,
-    so a robot's result does not depend on which branch its batch took.
-    """
-
-    def solve(points, in_contact, com, f_lin, f_ang, fz_max, warm):
-        mu = jnp.asarray(params.mu_relaxed, points.dtype)
-        return _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz_max, warm)
-
-    def skipped(points, warm):
-        zero = jnp.zeros((), points.dtype)
-        return (jnp.zeros_like(points), jnp.zeros(3, points.dtype), zero, zero, zero, warm)
-
-    @custom_vmap
-    def relaxed(need, points, in_contact, com, f_lin, f_ang, fz_max, warm):
-        args = (points, in_contact, com, f_lin, f_ang, fz_max, warm)
-        return jax.lax.cond(need, solve, lambda *a: skipped(a[0], a[-1]), *args)
-
-    @relaxed.def_vmap
-    def relaxed_batched(axis_size, in_batched, need, *args):
-        need_batched, *args_batched = in_batched
-        need = need if need_batched else jnp.broadcast_to(need, (axis_size,))
-        args = tuple(
-            jax.tree.map(
-                lambda a, b: a if b else jnp.broadcast_to(a, (axis_size, *jnp.shape(a))), x, xb
-            )
-            for x, xb in zip(args, args_batched, strict=True)
-        )
-        slots = min(params.relaxed_slots, axis_size)
-        none = jax.vmap(skipped)(args[0], args[-1])
-
-        def gathered():
-            count = jnp.sum(need)
-            (idx,) = jnp.nonzero(need, size=slots, fill_value=0)
-            sub = jax.tree.map(lambda a: a[idx], args)
-            out = jax.vmap(solve)(*sub)
-            # Unused slots scatter out of range and are dropped.
-            dest = jnp.where(jnp.arange(slots) < count, idx, axis_size)
-            return jax.tree.map(lambda base, o: base.at[dest].set(o, mode="drop"), none, out)
-
-        def whole():
-            out = jax.vmap(solve)(*args)
-            return jax.tree.map(
-                lambda o, base: jnp.where(need.reshape((-1,) + (1,) * (o.ndim - 1)), o, base),
-                out,
-                none,
-            )
-
-        count = jnp.sum(need)
-        branch = jnp.where(count == 0, 0, jnp.where(count <= slots, 1, 2))
-        out = jax.lax.switch(branch, (lambda: none, gathered, whole))
-        return out, jax.tree.map(lambda _: True, out)
-
-    return relaxed
+    (z, u), _ = jax.lax.scan(step, (tuple(warm.z), tuple(warm.u)), None, length=params.iterations)
+    f = f_step(z, u)
+    z, u = jnp.stack(z), jnp.stack(u)
+    return ForceQPState(z, u), f
 
 
 def solve_contact_forces(
@@ -313,42 +276,48 @@ def solve_contact_forces(
     f_ang,
     params: ForceQPParams = ForceQPParams(),
     fz_max=None,
-    warm_start=None,
+    warm_start: ForceQPState | None = None,
 ) -> ForceQPSolution:
     """Contact forces for a desired CoM force ``f_lin = m (a_com + g)`` and CAM rate ``f_ang``.
 
     ``points`` (n, 3) world contact points, ``in_contact`` (n,) bool, ``com`` (3,).
-    ``fz_max``: optional per-point upper normal-force bound (contact blending).
+    ``fz_max``: optional per-point upper normal-force bound (N; contact blending).
     ``warm_start``: the previous solution's ``warm_start``.
     """
     points, com = jnp.asarray(points), jnp.asarray(com)
-    f_lin, f_ang = jnp.asarray(f_lin, points.dtype), jnp.asarray(f_ang, points.dtype)
+    dtype = points.dtype
+    n = points.shape[0]
+    in_contact = jnp.asarray(in_contact, bool)
+    f_lin, f_ang = jnp.asarray(f_lin, dtype), jnp.asarray(f_ang, dtype)
+    fz_max = jnp.full((n,), params.fz_max, dtype) if fz_max is None else fz_max
+    fz_max = jnp.asarray(fz_max, dtype)
     if warm_start is None:
-        warm_start = zero_warm_start(points.shape[0], points.dtype)
-    if params.relaxed_on_demand:
-        n = points.shape[0]
-        fz = jnp.full((n,), params.fz_max, points.dtype) if fz_max is None else fz_max
-        fz = jnp.asarray(fz, points.dtype)
-        mu = jnp.asarray(params.mu, points.dtype)
-        nominal = _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz, warm_start[0])
-        use_relaxed = nominal[3] > params.tolerance
-        relaxed = _relaxed_where_needed(params)(
-            use_relaxed, points, in_contact, com, f_lin, f_ang, fz, warm_start[1]
-        )
-        relaxed_warm = jax.tree.map(
-            lambda r, m: jnp.where(use_relaxed, r, m), relaxed[5], nominal[5]
-        )
-        warm_out = (nominal[5], relaxed_warm)
-    else:
-        # Both cones at once, as a batch of two: one pass of small ops instead of two.
-        warm = jax.tree.map(lambda a, b: jnp.stack([a, b]), *warm_start)
-        mus = jnp.asarray([params.mu, params.mu_relaxed], points.dtype)
-        both = jax.vmap(
-            lambda mu, w: _solve(points, in_contact, com, f_lin, f_ang, mu, params, fz_max, w)
-        )(mus, warm)
-        nominal, relaxed = (jax.tree.map(lambda a, k=k: a[k], both) for k in (0, 1))
-        use_relaxed = nominal[3] > params.tolerance
-        warm_out = (nominal[5], relaxed[5])
-    pick = jax.tree.map(lambda a, b: jnp.where(use_relaxed, b, a), nominal[:5], relaxed[:5])
-    forces, angular, lin_res, violation, dual = pick
-    return ForceQPSolution(forces, angular, lin_res, violation, dual, use_relaxed, warm_out)
+        warm_start = zero_warm_start(n, dtype)
+    # Non-finite commands or geometry (a fallen or exploded state): solve a zero problem,
+    # flagged infeasible, rather than let NaN reach the torques.
+    finite = jnp.all(jnp.isfinite(f_lin)) & jnp.all(jnp.isfinite(f_ang))
+    finite = finite & jnp.all(jnp.isfinite(points)) & jnp.all(jnp.isfinite(com))
+    f_lin, f_ang = jnp.where(finite, f_lin, 0.0), jnp.where(finite, f_ang, 0.0)
+    points, com = jnp.where(finite, points, 0.0), jnp.where(finite, com, 0.0)
+    warm_start = jax.tree.map(
+        lambda a: jnp.where(finite & jnp.all(jnp.isfinite(a)), a, 0.0), warm_start
+    )
+    nominal_ok = net_force_feasible(f_lin, in_contact, fz_max, params.mu, params)
+    relaxed_ok = net_force_feasible(f_lin, in_contact, fz_max, params.mu_relaxed, params)
+    mu = jnp.where(nominal_ok, params.mu, params.mu_relaxed).astype(dtype)
+    s = params.force_scale
+    fz_lo = jnp.where(in_contact, params.fz_min / s, 0.0).astype(dtype)
+    # fz_max below fz_min (a contact blending in): the point carries exactly fz_min.
+    fz_hi = jnp.where(in_contact, jnp.maximum(fz_max, params.fz_min) / s, 0.0).astype(dtype)
+    matrix, offset, w_ang = affine_step(points, in_contact, com, f_lin, f_ang, params)
+    state, f = admm(matrix, offset, fz_lo, fz_hi, mu, params, warm_start)
+    forces = state.z.T * s
+    return ForceQPSolution(
+        forces=forces,
+        angular=(w_ang @ state.z.reshape(-1)) * s,
+        linear_residual=jnp.max(jnp.abs(jnp.sum(forces, axis=0) - f_lin)),
+        primal_residual=jnp.max(jnp.abs(f - state.z)) * s,
+        relaxed=~nominal_ok,
+        infeasible=~(relaxed_ok & finite),
+        warm_start=state,
+    )

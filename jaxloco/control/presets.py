@@ -91,11 +91,11 @@ def wblc_config(hierarchy: str | tuple[str, ...] = "walking", **overrides) -> WB
 
 # The walking controller's force QP runs every tick from the previous tick's solution, so
 # it needs fewer iterations than a cold solve (ForceQPParams' defaults, which meet the
-# accuracy target against quadprog from a cold start). Measured on two 6 s walks with a
-# 520 N push (float32, 12,000 ticks), against a cold 400-iteration solve of each tick's QP:
-# 400 warm-started iterations + 4 polish steps disagreed on the relaxed-cone flag at 34
-# ticks, 200 + 2 at 42, 100 + 4 at 65 and 50 + 4 at 516 (those relax the cone needlessly).
-CLOSED_LOOP_QP = ForceQPParams(iterations=200, polish_steps=2)
+# accuracy target against quadprog from a cold start). Measured along a 1 kHz sequence of
+# problems (tests/test_force_qp.py), against 2000 cold iterations: 200 warm-started
+# iterations are within 4e-6 N at the median tick and 4.4 N at the worst (a few ticks after
+# a foot's force bound starts to bind); 100 within 2e-3 N and 13 N.
+CLOSED_LOOP_QP = ForceQPParams(iterations=200)
 
 
 def walking_config(**overrides) -> WBLCConfig:

@@ -133,9 +133,14 @@ class WBLCDiagnostics:
     cam_rate_achieved: jax.Array
     """``W_ang F_r`` (Eq. 15)."""
     qp_relaxed: jax.Array
-    """True when the friction cone had to be relaxed to ``mu_relaxed``."""
-    qp_violation: jax.Array
-    qp_dual_residual: jax.Array
+    """True when the nominal friction cone cannot carry the CoM task's net force, and
+    ``mu_relaxed`` was used."""
+    qp_infeasible: jax.Array
+    """True when not even the relaxed cone can (see ``qp_linear_residual``)."""
+    qp_linear_residual: jax.Array
+    """Net force the contact forces miss (N)."""
+    qp_primal_residual: jax.Array
+    """How far the force QP's ADMM is from converged (N)."""
     base_residual: jax.Array
     """Floating-base rows of Eq. 17 left unmet (6,): 0 when the torques realise qdd^d."""
     torque_over_limit: jax.Array
@@ -151,7 +156,7 @@ class WBLCOutput:
     torques: jax.Array
     """(nu,) actuator torques, actuator order."""
     diagnostics: WBLCDiagnostics
-    qp_state: tuple
+    qp_state: force_qp.ForceQPState
     """Pass back as ``previous`` next tick (warm start)."""
 
 
@@ -187,7 +192,7 @@ class WBLC:
             for t in self.config.tasks
         }
 
-    def initial_qp_state(self, dtype=None) -> tuple:
+    def initial_qp_state(self, dtype=None) -> force_qp.ForceQPState:
         return force_qp.zero_warm_start(len(self.point_sites), dtype)
 
     def __call__(
@@ -345,8 +350,9 @@ def wblc_tick(
         contact_forces=sol.forces,
         cam_rate_achieved=sol.angular,
         qp_relaxed=sol.relaxed,
-        qp_violation=sol.violation,
-        qp_dual_residual=sol.dual_residual,
+        qp_infeasible=sol.infeasible,
+        qp_linear_residual=sol.linear_residual,
+        qp_primal_residual=sol.primal_residual,
         base_residual=base_residual,
         torque_over_limit=jnp.abs(torques) > ctrl.torque_limits,
         task_errors={n: t.error for n, t in terms.items()},

@@ -289,13 +289,6 @@ def push_loss(
     from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states
     from jaxloco.sweep.starts import snapshot_walk
 
-    qp = ctrl.wblc.config.force_qp
-    if qp.relaxed_on_demand:
-        # Its batching rule is not differentiable: solve both cones every tick instead.
-        config = dataclasses.replace(
-            ctrl.wblc.config, force_qp=dataclasses.replace(qp, relaxed_on_demand=False)
-        )
-        ctrl = dataclasses.replace(ctrl, wblc=dataclasses.replace(ctrl.wblc, config=config))
     base = ctrl.wblc.default_gains()
     space.check(base)
     base_gait = dataclasses.asdict(ctrl.gait_params)
