@@ -18,7 +18,6 @@ orientation and joint posture, one ``solve(True)`` per tick.
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 import subprocess
 import sys
 import time

@@ -19,7 +19,6 @@ from jaxloco.control.force_qp import (  # noqa: E402
     zero_warm_start,
 )
 
-
 CORNERS = np.array([[0.119, 0.05], [0.119, -0.05], [-0.081, 0.05], [-0.081, -0.05]])
 
 
