@@ -8,7 +8,7 @@ For contact points ``p_i`` (3-D force ``f_i`` each) around the centre of mass ``
          f_i = 0                                (points not in contact)
 
 with ``W_lin f = sum f_i`` and ``W_ang f = sum (p_i - c) x f_i``. Weights and bounds default
-to the authors' (``shared/reference/paper-details.md``).
+to the authors' published values.
 
 **Which cone.** The moment is soft, so the QP is feasible exactly when the net force can be
 split over the points within their sets. Every pyramid is the same world-aligned one, so
