@@ -8,7 +8,7 @@ called as users call it: ``jax.jit`` of ``WBLC.__call__`` from Python. Stages ar
 separate jitted functions on the same state to show what bounds the time, and, batched
 as sweeps run it, by ablation: the whole vmapped tick with its stages replaced, one more at a
 time, by stand-ins of the same shapes (the force QP by an equal share of the net force, the
-task hierarchy by zeros, the torque pseudo-inverse by a scaled identity), so the differences
+task hierarchy by zeros, the torque solve by the task torques), so the differences
 are what each stage costs inside the real tick. The peer, when
 ``placo`` and ``example-robot-data`` are installed (``pip install -e .[bench]``), is
 PlaCo's ``DynamicsSolver`` on the Talos humanoid (nv = 38): two foot contacts, CoM, trunk
@@ -89,11 +89,18 @@ def _qp_stand_in(points, in_contact, com, f_lin, f_ang, params, fz_max=None, war
     return force_qp.ForceQPSolution(forces, f_ang, zero, zero, zero > 0, zero > 0, warm_start)
 
 
-def _hierarchy_stand_in(jacs, cmds, mass_inv, rtol, whiten):
-    nv = mass_inv.shape[0]
+def _hierarchy_stand_in(jacs, cmds, mass_cholesky, rtol, whiten):
+    nv = mass_cholesky.shape[0]
     # Touch every input so that nothing upstream is dead code.
     qdd = jnp.zeros((nv, cmds[0].shape[1])) + sum(jnp.sum(j) for j in jacs) * 0 + cmds[0][0]
-    return hierarchy.HierarchyResult(qdd, jnp.eye(nv) * mass_inv[0, 0], tuple(cmds))
+    projector = jnp.eye(nv) * mass_cholesky[0, 0]
+    return hierarchy.HierarchyResult(qdd, projector, mass_cholesky, tuple(cmds))
+
+
+def _torque_stand_in(ctrl, a_null, tau_task, rtol):
+    dofs = jnp.asarray(ctrl.actuated_dofs)
+    base = jnp.asarray(ctrl.unactuated_dofs)
+    return tau_task[dofs] + a_null[0, 0], jnp.zeros_like(tau_task), tau_task[base]
 
 
 def ablation_rows(ctrl, refs, q, batch: int, repeats: int) -> list[dict]:
@@ -112,10 +119,8 @@ def ablation_rows(ctrl, refs, q, batch: int, repeats: int) -> list[dict]:
             mock.patch.object(wblc_module, "prioritized_accelerations", _hierarchy_stand_in),
         ),
         (
-            "torque pseudo-inverse (Eq. 19)",
-            mock.patch.object(
-                wblc_module, "pinv_psd", lambda m, rtol: jnp.eye(m.shape[0]) * m[0, 0]
-            ),
+            "torque solve (Eq. 19)",
+            mock.patch.object(wblc_module, "torque_solution", _torque_stand_in),
         ),
     ]
     rows, removed = [], []

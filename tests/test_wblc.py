@@ -60,16 +60,16 @@ def random_tasks(rng, nv, dims):
 
 def test_higher_priority_unchanged_by_lower_tasks():
     nv = 12
-    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    chol = jnp.asarray(np.linalg.cholesky(random_spd(nv, RNG)))
     jacs, cmds = random_tasks(RNG, nv, (3, 4, 6, 5))  # 18 rows > 12: conflicts below
-    top = prioritized_accelerations(jacs[:2], cmds[:2], a_inv)
+    top = prioritized_accelerations(jacs[:2], cmds[:2], chol)
     for extra in range(1, 3):
-        more = prioritized_accelerations(jacs[: 2 + extra], cmds[: 2 + extra], a_inv)
+        more = prioritized_accelerations(jacs[: 2 + extra], cmds[: 2 + extra], chol)
         for k in range(2):
             np.testing.assert_allclose(jacs[k] @ more.qdd, jacs[k] @ top.qdd, atol=1e-9)
     # Changing a lower task's command leaves the higher ones alone.
-    changed = prioritized_accelerations(jacs, [*cmds[:3], cmds[3] * 10 + 1], a_inv)
-    base = prioritized_accelerations(jacs, cmds, a_inv)
+    changed = prioritized_accelerations(jacs, [*cmds[:3], cmds[3] * 10 + 1], chol)
+    base = prioritized_accelerations(jacs, cmds, chol)
     for k in range(3):
         np.testing.assert_allclose(jacs[k] @ changed.qdd, jacs[k] @ base.qdd, atol=1e-9)
     # The top two are met exactly (7 independent rows of 12).
@@ -77,11 +77,49 @@ def test_higher_priority_unchanged_by_lower_tasks():
     np.testing.assert_allclose(jacs[1] @ base.qdd, cmds[1], atol=1e-9)
 
 
+def reference_hierarchy(jacs, cmds, mass, rtol):
+    """Eq. 7-10 as written, in numpy: A^-1, N_prec products and SVD pseudo-inverses of
+    the whitened rows (the rank threshold relative to the whitened task)."""
+    a_inv = np.linalg.inv(mass)
+    nv = mass.shape[0]
+    qdd, null = np.zeros(nv), np.eye(nv)
+    for jac, cmd in zip(jacs, cmds, strict=True):
+        w = np.linalg.cholesky(jac @ a_inv @ jac.T)
+        jac, cmd = np.linalg.solve(w, jac), np.linalg.solve(w, cmd)
+        projected = jac @ null
+        lam = np.linalg.pinv(projected @ a_inv @ projected.T, rcond=rtol, hermitian=True)
+        jbar = a_inv @ projected.T @ lam
+        qdd = qdd + jbar @ (cmd - jac @ qdd)
+        null = null @ (np.eye(nv) - jbar @ projected)
+    return qdd, null
+
+
+def test_matches_the_equations_as_written():
+    """The y = L' qdd formulation against Eq. 7-10 in the joint-space metric: the same
+    accelerations and null space, with levels that conflict and levels that lose rank."""
+    nv = 12
+    mass = random_spd(nv, RNG)
+    jacs, cmds = random_tasks(RNG, nv, (3, 4, 2, 6))
+    jacs[2] = jnp.concatenate([jacs[0][:1] + 1e-3 * jacs[2][:1], jacs[2][1:]])  # 1e-3 free
+    res = prioritized_accelerations(jacs, cmds, jnp.asarray(np.linalg.cholesky(mass)), 1e-2)
+    qdd, null = reference_hierarchy(
+        [np.asarray(j) for j in jacs], [np.asarray(c) for c in cmds], mass, 1e-2
+    )
+    np.testing.assert_allclose(res.qdd, qdd, atol=1e-8)
+    np.testing.assert_allclose(res.null_space, null, atol=1e-8)
+    np.testing.assert_allclose(
+        res.apply_null_space(jnp.asarray(cmds[3][:1].repeat(nv))),
+        null @ np.full(nv, float(cmds[3][0])),
+        atol=1e-8,
+    )
+    np.testing.assert_allclose(res.mass_times_null_space(), mass @ null, atol=1e-8)
+
+
 def test_without_conflicts_every_task_is_met():
     nv = 14
-    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    chol = jnp.asarray(np.linalg.cholesky(random_spd(nv, RNG)))
     jacs, cmds = random_tasks(RNG, nv, (3, 3, 4, 2))  # 12 independent rows <= 14
-    res = prioritized_accelerations(jacs, cmds, a_inv)
+    res = prioritized_accelerations(jacs, cmds, chol)
     for jac, cmd in zip(jacs, cmds, strict=True):
         np.testing.assert_allclose(jac @ res.qdd, cmd, atol=1e-9)
     # The final null space leaves every task unchanged (Eq. 13): J_k N = 0.
@@ -91,13 +129,13 @@ def test_without_conflicts_every_task_is_met():
 
 def test_redundant_and_masked_levels_are_harmless():
     nv = 10
-    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    chol = jnp.asarray(np.linalg.cholesky(random_spd(nv, RNG)))
     jacs, cmds = random_tasks(RNG, nv, (3, 2))
     redundant = jacs[0][:2]  # rows already controlled above, commanded consistently
     res = prioritized_accelerations(
         [jacs[0], redundant, jnp.zeros((4, nv)), jacs[1]],
         [cmds[0], cmds[0][:2], jnp.zeros(4), cmds[1]],
-        a_inv,
+        chol,
     )
     np.testing.assert_allclose(jacs[0] @ res.qdd, cmds[0], atol=1e-9)
     np.testing.assert_allclose(jacs[1] @ res.qdd, cmds[1], atol=1e-9)
@@ -110,15 +148,15 @@ def test_rank_threshold_ignores_row_units():
     whitened before the threshold is applied. Unwhitened, the small rows' eigenvalues fall
     ~1e-8 below the largest and rtol = 1e-3 dropped them."""
     nv = 12
-    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    chol = jnp.asarray(np.linalg.cholesky(random_spd(nv, RNG)))
     jacs, cmds = random_tasks(RNG, nv, (6, 4))
     scale = jnp.asarray([1.0, 1.0, 1.0, 1e-4, 1e-4, 1e-4])[:, None]
     jacs[0], cmds[0] = jacs[0] * scale, cmds[0] * scale[:, 0]
-    res = prioritized_accelerations(jacs, cmds, a_inv, rtol=1e-3)
+    res = prioritized_accelerations(jacs, cmds, chol, rtol=1e-3)
     np.testing.assert_allclose(jacs[0] @ res.qdd, cmds[0], rtol=1e-9, atol=1e-14)
     np.testing.assert_allclose(jacs[1] @ res.qdd, cmds[1], atol=1e-9)
     # whiten=False (the threshold in the rows' own units) drops the small rows.
-    raw = prioritized_accelerations(jacs, cmds, a_inv, rtol=1e-3, whiten=False)
+    raw = prioritized_accelerations(jacs, cmds, chol, rtol=1e-3, whiten=False)
     missed = np.abs(np.asarray(jacs[0] @ raw.qdd - cmds[0]))
     assert missed[3:].max() > 1e-2 * np.abs(np.asarray(cmds[0][3:])).max()
     np.testing.assert_allclose(jacs[0][:3] @ raw.qdd, cmds[0][:3], rtol=1e-6)
@@ -127,12 +165,12 @@ def test_rank_threshold_ignores_row_units():
 def test_command_columns_solve_like_separate_calls():
     """The hierarchy is linear in the commands: (m_k, r) commands give r solutions."""
     nv = 12
-    a_inv = jnp.asarray(np.linalg.inv(random_spd(nv, RNG)))
+    chol = jnp.asarray(np.linalg.cholesky(random_spd(nv, RNG)))
     jacs, _ = random_tasks(RNG, nv, (3, 4, 8))
     cols = [jnp.asarray(RNG.normal(size=(j.shape[0], 3))) for j in jacs]
-    res = prioritized_accelerations(jacs, cols, a_inv)
+    res = prioritized_accelerations(jacs, cols, chol)
     for c in range(3):
-        one = prioritized_accelerations(jacs, [x[:, c] for x in cols], a_inv)
+        one = prioritized_accelerations(jacs, [x[:, c] for x in cols], chol)
         np.testing.assert_allclose(res.qdd[:, c], one.qdd, atol=1e-10)
         for r_all, r_one in zip(res.task_residuals, one.task_residuals, strict=True):
             np.testing.assert_allclose(r_all[:, c], r_one, atol=1e-10)
@@ -203,6 +241,34 @@ def test_one_tick_is_consistent(valkyrie):
     # Limits are flagged, not clipped (random velocities ask for more than the neck has).
     limits = np.abs(model.actuator_ctrlrange).max(1)
     np.testing.assert_array_equal(dg.torque_over_limit, np.abs(out.torques) > limits)
+
+
+@pytest.mark.parametrize("rank", [4, 20])
+def test_torque_solution_is_the_minimum_norm_least_squares_one(valkyrie, rank):
+    """Eq. 19 by a Cholesky and a base-rows pseudo-inverse against the pseudo-inverse of
+    the whole ``[U', -A N]`` (numpy SVD): same torques, ``qdd_res`` and base residual,
+    whether the base rows can be met (rank 20) or not (rank 4 < 6)."""
+    from jaxloco.control.wblc import torque_solution
+
+    model, _, ctrl, _, _ = valkyrie
+    rng = np.random.default_rng(7)
+    nv = model.nv
+    mass = random_spd(nv, rng)
+    basis = np.linalg.qr(rng.normal(size=(nv, rank)))[0]
+    chol = np.linalg.cholesky(mass)
+    a_null = chol @ (basis @ basis.T) @ chol.T
+    tau_task = rng.normal(scale=50.0, size=nv)
+    torques, qdd_res, base_residual = torque_solution(
+        ctrl, jnp.asarray(a_null), jnp.asarray(tau_task), 1e-8
+    )
+    system = np.concatenate([np.asarray(ctrl.selection).T, -a_null], axis=1)
+    solution = np.linalg.pinv(system, rcond=1e-10) @ tau_task
+    nu = model.nu
+    np.testing.assert_allclose(torques, solution[:nu], rtol=1e-7, atol=1e-7)
+    np.testing.assert_allclose(qdd_res, solution[nu:], rtol=1e-7, atol=1e-7)
+    expected = (system @ solution - tau_task)[list(ctrl.unactuated_dofs)]
+    np.testing.assert_allclose(base_residual, expected, atol=1e-7)
+    assert (np.abs(expected).max() > 1.0) == (rank < 6)
 
 
 def test_wblc_matches_mujoco_forward_dynamics(valkyrie):

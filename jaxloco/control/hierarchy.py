@@ -16,6 +16,15 @@ special cases. Each task's rows are first whitened (:func:`whiten_task`), so the
 threshold reads as "the fraction of a task direction left free by the levels above",
 whatever the units of its rows. The levels are a Python sequence of static shapes: the
 loop unrolls at trace time and the result batches with ``vmap``.
+
+**How it is computed.** With the mass matrix factored as ``A = L L'``, the coordinates
+``y = L' qdd`` turn the mass-matrix metric into the Euclidean one: ``J A^-1 J' = Jt Jt'``
+for ``Jt = J L^-T``, and the dynamically consistent null-space projectors become
+orthogonal projectors ``P`` with ``N_prec = L^-T P L'``. Each level then costs products
+of its ``m`` rows with an ``(nv, nv)`` projector (``P <- P - B' (B B')^+ B`` for
+``B = Jt P``) instead of ``(nv, nv)`` by ``(nv, nv)`` products and a multiplication by
+``A^-1`` per level; the matrices whose pseudo-inverses are taken are the same as in the
+formulas above, so the thresholds decide the same way.
 """
 
 from __future__ import annotations
@@ -33,22 +42,37 @@ from jaxloco.control.pinv import pinv_psd
 @struct.dataclass
 class HierarchyResult:
     qdd: jax.Array
-    """``qdd_[task]`` (nv,), Eq. 9."""
-    null_space: jax.Array
-    """``N_{n|prec(n)}`` (nv, nv), Eq. 13: the motions that leave every task unchanged."""
+    """``qdd_[task]`` (nv,) or (nv, r), Eq. 9."""
+    projector: jax.Array
+    """(nv, nv) orthogonal projector ``P`` onto the motions, in ``y = L' qdd`` coordinates,
+    that leave every task unchanged: ``N = L^-T P L'`` (see :attr:`null_space`)."""
+    mass_cholesky: jax.Array
+    """(nv, nv) lower-triangular ``L`` with ``A = L L'``."""
     task_residuals: tuple
     """Per level, ``e_k - J_k qdd_[task]``: what the level could not achieve (0 if met)."""
 
+    @property
+    def null_space(self) -> jax.Array:
+        """``N_{n|prec(n)}`` (nv, nv), Eq. 13: the motions that leave every task unchanged."""
+        return jax.scipy.linalg.solve_triangular(
+            self.mass_cholesky, self.projector @ self.mass_cholesky.T, lower=True, trans="T"
+        )
 
-def dynamically_consistent_inverse(jacobian, mass_inv, rtol: float = 1e-8, scale=None):
-    """``Jbar = A^-1 J' (J A^-1 J')^+`` (Eq. 7); ``scale``: see :func:`pinv_psd`."""
-    a_inv_jt = mass_inv @ jacobian.T
-    return a_inv_jt @ pinv_psd(jacobian @ a_inv_jt, rtol, scale)
+    def apply_null_space(self, qdd_free: jax.Array) -> jax.Array:
+        """``N qdd_free`` (nv,) without forming ``N``."""
+        y = self.projector @ (self.mass_cholesky.T @ qdd_free)
+        return jax.scipy.linalg.solve_triangular(self.mass_cholesky, y, lower=True, trans="T")
+
+    def mass_times_null_space(self) -> jax.Array:
+        """``A N = L P L'`` (nv, nv), the null-space columns of Eq. 17."""
+        return (self.mass_cholesky @ self.projector) @ self.mass_cholesky.T
 
 
-def whiten_task(jacobian, command, mass_inv):
-    """Rows ``L^-1 J`` and command ``L^-1 e`` with ``L L' = J A^-1 J'`` (plus a jitter of
-    100 machine epsilons of its largest diagonal entry, so rows switched off stay zero).
+def whiten_task(jacobian, command):
+    """Rows ``C^-1 J`` and command ``C^-1 e`` with ``C C' = J J'`` (plus a jitter of 100
+    machine epsilons of its largest diagonal entry, so rows switched off stay zero), for
+    rows ``J`` already in the coordinates where the metric is Euclidean (``Jt = J L^-T``,
+    where ``J J'`` is the task's ``J A^-1 J'``).
 
     An invertible change of a task's rows leaves its solution unchanged; what it changes
     is which directions a rank threshold calls lost. Task rows mix units (a foot's rotation
@@ -57,7 +81,7 @@ def whiten_task(jacobian, command, mass_inv):
     drops directions that are not lost: at ``rtol = 1e-3`` the two-foot contact constraint
     lost 4 of its 12 directions at the walking keyframe.
     """
-    gram = (jacobian @ mass_inv) @ jacobian.T
+    gram = jacobian @ jacobian.T
     dtype = gram.dtype
     largest = jnp.max(jnp.diagonal(gram))
     jitter = jnp.where(largest > 0, 100.0 * jnp.finfo(dtype).eps * largest, 1.0)
@@ -69,7 +93,7 @@ def whiten_task(jacobian, command, mass_inv):
 def prioritized_accelerations(
     jacobians: Sequence[jax.Array],
     commands: Sequence[jax.Array],
-    mass_inv: jax.Array,
+    mass_cholesky: jax.Array,
     rtol: float = 1e-8,
     whiten: bool = True,
 ) -> HierarchyResult:
@@ -78,29 +102,38 @@ def prioritized_accelerations(
     ``jacobians[k]`` is ``(m_k, nv)``; ``commands[k]`` is ``e_k = xdd_k^d - Jdot_k qd``,
     ``(m_k,)`` or ``(m_k, r)``: the map is linear in the commands, so ``r`` columns of
     commands give ``r`` columns of ``qdd`` and residuals from one pass.
+    ``mass_cholesky``: lower-triangular ``L`` with ``L L' = A``, the mass matrix.
     ``whiten``: threshold each level in whitened rows (:func:`whiten_task`, ``rtol`` is then
     the fraction of a task direction left free); ``False`` thresholds relative to the
     unprojected task's largest diagonal entry of ``J A^-1 J'``, in the units of its rows.
     """
     if len(jacobians) != len(commands) or not jacobians:
         raise ValueError("prioritized_accelerations: need one command per Jacobian, >= 1 task")
-    nv = mass_inv.shape[0]
-    eye = jnp.eye(nv, dtype=mass_inv.dtype)
-    null = eye
-    qdd = jnp.zeros((nv, *jnp.shape(commands[0])[1:]), mass_inv.dtype)
-    for jac, cmd in zip(jacobians, commands, strict=True):
+    chol = mass_cholesky
+    nv = chol.shape[0]
+    dtype = chol.dtype
+    sizes = [j.shape[0] for j in jacobians]
+    # Jt = J L^-T for every level at once: one triangular solve.
+    stacked = jax.scipy.linalg.solve_triangular(
+        chol, jnp.concatenate(jacobians, axis=0).T, lower=True
+    ).T
+    offsets = [sum(sizes[:k]) for k in range(len(sizes))]
+    projector = jnp.eye(nv, dtype=dtype)
+    y = jnp.zeros((nv, *jnp.shape(commands[0])[1:]), dtype)
+    for start, size, cmd in zip(offsets, sizes, commands, strict=True):
+        rows = stacked[start : start + size]
         if whiten:
-            jac_w, cmd_w = whiten_task(jac, cmd, mass_inv)
+            rows, cmd = whiten_task(rows, cmd)
             # Whitened, the unprojected task's J A^-1 J' is I: each eigenvalue of the
             # projected one is the fraction of a task direction the levels above leave free.
-            scale = jnp.ones((), qdd.dtype)
+            scale = jnp.ones((), dtype)
         else:
-            jac_w, cmd_w = jac, cmd
             # Rank judged against the task's own size before projection (see pinv_psd).
-            scale = jnp.max(jnp.sum((jac @ mass_inv) * jac, axis=1))
-        projected = jac_w @ null  # J_{k|prec(k)}
-        jbar = dynamically_consistent_inverse(projected, mass_inv, rtol, scale)
-        qdd = qdd + jbar @ (cmd_w - jac_w @ qdd)
-        null = null @ (eye - jbar @ projected)
+            scale = jnp.max(jnp.sum(rows * rows, axis=1))
+        projected = rows @ projector  # J_{k|prec(k)} in y coordinates
+        gram_pinv = pinv_psd(projected @ projected.T, rtol, scale)
+        y = y + projected.T @ (gram_pinv @ (cmd - rows @ y))
+        projector = projector - projected.T @ (gram_pinv @ projected)
+    qdd = jax.scipy.linalg.solve_triangular(chol, y, lower=True, trans="T")
     residuals = tuple(cmd - jac @ qdd for jac, cmd in zip(jacobians, commands, strict=True))
-    return HierarchyResult(qdd, null, residuals)
+    return HierarchyResult(qdd, projector, chol, residuals)

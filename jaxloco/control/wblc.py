@@ -30,6 +30,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 import mujoco
+import numpy as np
 from flax import struct
 from mujoco import mjx
 
@@ -176,6 +177,8 @@ class WBLC:
     selection: jax.Array
     torque_limits: jax.Array
     unactuated_dofs: tuple[int, ...]
+    actuated_dofs: tuple[int, ...]
+    """The dof each actuator drives, actuator order."""
 
     def default_gains(self) -> dict:
         return default_gains(self.config.tasks)
@@ -228,6 +231,10 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
         jnp.max(jnp.abs(model.actuator_ctrlrange), axis=1) * model.actuator_gear[:, 0],
         jnp.inf,
     )
+    if np.any(model.actuator_gear[:, 0] == 0):
+        raise ValueError("make_wblc: every actuator needs a nonzero gear")
+    if len(set(dofs.tolist())) != len(dofs):
+        raise ValueError("make_wblc: each actuated joint must have exactly one actuator")
     unactuated = tuple(sorted(set(range(model.nv)) - {int(v) for v in dofs}))
     return WBLC(
         model,
@@ -239,6 +246,7 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
         selection,
         limits,
         unactuated,
+        tuple(int(v) for v in dofs),
     )
 
 
@@ -298,9 +306,8 @@ def wblc_tick(
                 ]
             )
         )
-    chol = jax.scipy.linalg.cho_factor(snap.mass_matrix)
-    mass_inv = jax.scipy.linalg.cho_solve(chol, jnp.eye(mx.nv, dtype=dtype))
-    hier = prioritized_accelerations(jacs, cmds, mass_inv, cfg.pinv_rtol, cfg.whiten_tasks)
+    mass_cholesky = jnp.linalg.cholesky(snap.mass_matrix)
+    hier = prioritized_accelerations(jacs, cmds, mass_cholesky, cfg.pinv_rtol, cfg.whiten_tasks)
 
     # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft. The angular target is
     # the CAM rate the hierarchy's motion implies. Where the CAM task is free in the
@@ -337,16 +344,12 @@ def wblc_tick(
     tau_task = (
         snap.mass_matrix @ qdd_task + snap.coriolis + snap.gravity - j_r.T @ sol.forces.reshape(-1)
     )
-    a_null = snap.mass_matrix @ hier.null_space
-    system = jnp.concatenate([ctrl.selection.T, -a_null], axis=1)  # (nv, nu + nv)
-    solution = system.T @ (pinv_psd(system @ system.T, cfg.torque_pinv_rtol) @ tau_task)
-    nu = ctrl.selection.shape[0]
-    torques, qdd_res = solution[:nu], solution[nu:]
-    residual = system @ solution - tau_task
-    base_residual = residual[jnp.asarray(ctrl.unactuated_dofs)]
+    torques, qdd_res, base_residual = torque_solution(
+        ctrl, hier.mass_times_null_space(), tau_task, cfg.torque_pinv_rtol
+    )
 
     diagnostics = WBLCDiagnostics(
-        qdd_desired=qdd_task + hier.null_space @ qdd_res,
+        qdd_desired=qdd_task + hier.apply_null_space(qdd_res),
         contact_forces=sol.forces,
         cam_rate_achieved=sol.angular,
         qp_relaxed=sol.relaxed,
@@ -359,3 +362,41 @@ def wblc_tick(
         level_residuals=level_residuals,
     )
     return WBLCOutput(torques, diagnostics, sol.warm_start)
+
+
+def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float):
+    """Eq. 19: the minimum-norm least-squares ``[tau; qdd_res]`` of
+    ``[U', -A N] [tau; qdd_res] = tau_task``, as ``(torques, qdd_res, base_residual)``.
+
+    Every actuated dof's row can be met by its own actuator, so only the unactuated rows
+    (the floating base) can be left unmet, and the problem is a least-norm one in
+    ``qdd_res`` alone: with ``tau = (tau_task + A N qdd_res)_act / gear``, minimise
+    ``|tau|^2 + |qdd_res|^2`` subject to the base rows in the least-squares sense. That is
+    one Cholesky factorisation of ``H = I + E'E`` (eigenvalues >= 1) and a thresholded
+    pseudo-inverse of the (base x base) ``K = C H^-1 C'``, the same answer as the
+    pseudo-inverse of the whole ``(nv, nu + nv)`` system for far less work.
+    """
+    dofs = jnp.asarray(ctrl.actuated_dofs)
+    gear = ctrl.selection[jnp.arange(len(ctrl.actuated_dofs)), dofs]
+    coupling = a_null[dofs] / gear[:, None]  # E: torques per unit of qdd_res
+    offset = tau_task[dofs] / gear  # h: torques at qdd_res = 0
+    nv = a_null.shape[0]
+    hessian = jnp.eye(nv, dtype=a_null.dtype) + coupling.T @ coupling
+    factor = jax.scipy.linalg.cho_factor(hessian, lower=True)
+    gradient = -coupling.T @ offset
+    if ctrl.unactuated_dofs:
+        base = jnp.asarray(ctrl.unactuated_dofs)
+        constraint, target = -a_null[base], tau_task[base]  # C qdd_res = d
+        solved = jax.scipy.linalg.cho_solve(
+            factor, jnp.concatenate([gradient[:, None], constraint.T], axis=1)
+        )
+        free, h_inv_ct = solved[:, 0], solved[:, 1:]
+        schur = constraint @ h_inv_ct
+        multiplier = pinv_psd(schur, rtol) @ (constraint @ free - target)
+        qdd_res = free - h_inv_ct @ multiplier
+        base_residual = constraint @ qdd_res - target
+    else:
+        qdd_res = jax.scipy.linalg.cho_solve(factor, gradient)
+        base_residual = jnp.zeros((0,), a_null.dtype)
+    torques = offset + coupling @ qdd_res
+    return torques, qdd_res, base_residual
