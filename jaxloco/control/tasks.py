@@ -109,6 +109,8 @@ class RobotSnapshot:
     motion: tuple
     centroidal_matrix: jax.Array
     centroidal_bias: jax.Array
+    mass_cholesky: jax.Array
+    """(nv, nv) lower-triangular ``L`` with ``L L' = mass_matrix``."""
     com: jax.Array
     com_vel: jax.Array
     total_mass: jax.Array
@@ -118,9 +120,11 @@ def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
     """The dynamics of the state ``(qpos, qvel)`` on the MJX model ``mx``."""
     d = mjx.make_data(mx).replace(qpos=qpos, qvel=qvel)
     d = jac.smooth(mx, d)
-    terms = joint_space_terms(mx, d, smoothed=True)
     jcm = centroidal.centroidal_momentum_matrix(mx, d)
     total = jnp.sum(mx.body_mass)
+    # The linear rows of J_cm are the total mass times the CoM Jacobian (gravity's map).
+    terms = joint_space_terms(mx, d, smoothed=True, com_jac=jcm[3:] / total)
+    chol = jnp.linalg.cholesky(terms.mass_matrix)
     return RobotSnapshot(
         data=d,
         mass_matrix=terms.mass_matrix,
@@ -128,7 +132,8 @@ def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
         gravity=terms.gravity,
         motion=jac.body_motion(mx, d),
         centroidal_matrix=jcm,
-        centroidal_bias=centroidal.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis),
+        centroidal_bias=centroidal.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis, chol),
+        mass_cholesky=chol,
         com=centroidal.centre_of_mass(mx, d),
         com_vel=jcm[3:] @ qvel / total,
         total_mass=total,
@@ -195,7 +200,7 @@ def task_terms(
     kp, kd = gains["kp"], gains["kd"]
     dtype = d.qvel.dtype
     if spec.kind == "com":
-        j = jac.com_jacobian(mx, d)
+        j = snap.centroidal_matrix[3:] / snap.total_mass  # = the CoM Jacobian
         jdqd = jac.com_jdot_qdot(mx, d, snap.motion)
         err = ref.pos - snap.com
         desired = kp * err + kd * (ref.vel - j @ d.qvel) + ref.acc

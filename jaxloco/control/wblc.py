@@ -306,8 +306,9 @@ def wblc_tick(
                 ]
             )
         )
-    mass_cholesky = jnp.linalg.cholesky(snap.mass_matrix)
-    hier = prioritized_accelerations(jacs, cmds, mass_cholesky, cfg.pinv_rtol, cfg.whiten_tasks)
+    hier = prioritized_accelerations(
+        jacs, cmds, snap.mass_cholesky, cfg.pinv_rtol, cfg.whiten_tasks
+    )
 
     # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft. The angular target is
     # the CAM rate the hierarchy's motion implies. Where the CAM task is free in the
@@ -334,15 +335,11 @@ def wblc_tick(
     terms[cam_name] = terms[cam_name].replace(desired=terms[cam_name].desired + shift[1:])
 
     # Torques, Eq. 16-19.
-    j_r = jnp.concatenate(
-        [
-            jac.point_jacobian(mx, d, d.site_xpos[s], int(ctrl.model.site_bodyid[s]))
-            for s in ctrl.point_sites
-        ],
-        axis=0,
-    )
     tau_task = (
-        snap.mass_matrix @ qdd_task + snap.coriolis + snap.gravity - j_r.T @ sol.forces.reshape(-1)
+        snap.mass_matrix @ qdd_task
+        + snap.coriolis
+        + snap.gravity
+        - contact_generalized_force(ctrl, d, sol.forces)
     )
     torques, qdd_res, base_residual = torque_solution(
         ctrl, hier.mass_times_null_space(), tau_task, cfg.torque_pinv_rtol
@@ -400,3 +397,21 @@ def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float):
         base_residual = jnp.zeros((0,), a_null.dtype)
     torques = offset + coupling @ qdd_res
     return torques, qdd_res, base_residual
+
+
+def contact_generalized_force(ctrl: WBLC, d, forces):
+    """``J_r' F_r`` (nv,) for (points, 3) world forces at the contact points.
+
+    Summed per body as a wrench at the world origin, ``[sum p x f; sum f]``, mapped by the
+    body's spatial Jacobian: one ``(6, nv)`` product per foot instead of a point Jacobian
+    per contact point.
+    """
+    points = d.site_xpos[jnp.asarray(ctrl.point_sites)]
+    bodies = [int(ctrl.model.site_bodyid[s]) for s in ctrl.point_sites]
+    total = jnp.zeros(d.qvel.shape, forces.dtype)
+    for body in sorted(set(bodies)):
+        idx = jnp.asarray([k for k, b in enumerate(bodies) if b == body])
+        f, p = forces[idx], points[idx]
+        wrench = jnp.concatenate([jnp.sum(jnp.cross(p, f), axis=0), jnp.sum(f, axis=0)])
+        total = total + jac.frame_jacobian_spatial(ctrl.mx, d, body).T @ wrench
+    return total

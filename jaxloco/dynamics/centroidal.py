@@ -67,10 +67,11 @@ def centroidal_inertia(m: mjx.Model, d: mjx.Data) -> jax.Array:
     return jnp.block([[rotational, zeros], [zeros, total * jnp.eye(3, dtype=r.dtype)]])
 
 
-def centroidal_bias(jcm, mass_matrix, coriolis) -> jax.Array:
+def centroidal_bias(jcm, mass_matrix, coriolis, mass_cholesky=None) -> jax.Array:
     """Eq. 31: ``Jdot_cm qd = J_cm A^-1 b`` (exact for the momentum; see module doc).
 
-    ``A`` is solved by Cholesky (it is symmetric positive definite).
+    ``A`` is solved by Cholesky (it is symmetric positive definite); ``mass_cholesky``: its
+    lower-triangular factor when the caller has it.
     """
-    chol = jax.scipy.linalg.cho_factor(mass_matrix)
-    return jcm @ jax.scipy.linalg.cho_solve(chol, coriolis)
+    chol = jnp.linalg.cholesky(mass_matrix) if mass_cholesky is None else mass_cholesky
+    return jcm @ jax.scipy.linalg.cho_solve((chol, True), coriolis)

@@ -25,11 +25,16 @@ class JointSpaceTerms:
     """``g`` (nv,)."""
 
 
-def joint_space_terms(m: mjx.Model, d: mjx.Data, smoothed: bool = False) -> JointSpaceTerms:
-    """``A``, ``b`` and ``g`` at ``(d.qpos, d.qvel)``. ``smoothed``: :func:`smooth` was run."""
+def joint_space_terms(
+    m: mjx.Model, d: mjx.Data, smoothed: bool = False, com_jac: jax.Array | None = None
+) -> JointSpaceTerms:
+    """``A``, ``b`` and ``g`` at ``(d.qpos, d.qvel)``. ``smoothed``: :func:`smooth` was run.
+    ``com_jac``: the (3, nv) CoM Jacobian when the caller has it (e.g. the linear rows of
+    the centroidal momentum matrix over the total mass)."""
     d = d if smoothed else smooth(m, d)
     total_mass = m.body_mass.sum()
-    gravity = -total_mass * (com_jacobian(m, d).T @ m.opt.gravity)
+    com_jac = com_jacobian(m, d) if com_jac is None else com_jac
+    gravity = -total_mass * (com_jac.T @ m.opt.gravity)
     return JointSpaceTerms(
         mass_matrix=mjx.full_m(m, d),
         coriolis=d.qfrc_bias - gravity,
