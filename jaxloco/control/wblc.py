@@ -371,7 +371,9 @@ def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float):
     ``|tau|^2 + |qdd_res|^2`` subject to the base rows in the least-squares sense. That is
     one Cholesky factorisation of ``H = I + E'E`` (eigenvalues >= 1) and a thresholded
     pseudo-inverse of the (base x base) ``K = C H^-1 C'``, the same answer as the
-    pseudo-inverse of the whole ``(nv, nu + nv)`` system for far less work.
+    pseudo-inverse of the whole ``(nv, nu + nv)`` system ``M`` for far less work. ``K`` is
+    the Schur complement of ``M M'`` on the base rows; ``rtol`` is relative to the size of
+    ``M M'``, as for the whole system's pseudo-inverse.
     """
     dofs = jnp.asarray(ctrl.actuated_dofs)
     gear = ctrl.selection[jnp.arange(len(ctrl.actuated_dofs)), dofs]
@@ -389,7 +391,14 @@ def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float):
         )
         free, h_inv_ct = solved[:, 0], solved[:, 1:]
         schur = constraint @ h_inv_ct
-        multiplier = pinv_psd(schur, rtol) @ (constraint @ free - target)
+        # K is the Schur complement of the whole system's M M' on the base rows, so its
+        # rank is judged against the size of M M' (as a pseudo-inverse of the whole
+        # system would): max gear^2 + |A N|_2^2, with |A N|_2^2 <= |(A N)^2|_F (A N is
+        # symmetric PSD) within a factor sqrt(rank). Relative to K's own largest
+        # eigenvalue, round-off directions of a nearly unreachable base were inverted
+        # into torques of 1e5 N m.
+        scale = jnp.max(gear * gear) + jnp.sqrt(jnp.sum(jnp.square(a_null @ a_null)))
+        multiplier = pinv_psd(schur, rtol, scale) @ (constraint @ free - target)
         qdd_res = free - h_inv_ct @ multiplier
         base_residual = constraint @ qdd_res - target
     else:
