@@ -271,6 +271,32 @@ def test_torque_solution_is_the_minimum_norm_least_squares_one(valkyrie, rank):
     assert (np.abs(expected).max() > 1.0) == (rank < 6)
 
 
+def test_torque_solution_float32_leaves_an_unreachable_base_direction_alone(valkyrie):
+    """One base direction out of reach of ``A N`` (rank 5 on the base rows, reached
+    with singular values ~1e2 under others of 1e3): in float32 its Schur complement is
+    round-off, which must be dropped (judged against the whole system's size) and not
+    inverted into huge torques; the reachable ones are kept."""
+    from jaxloco.control.wblc import torque_solution
+
+    model, _, ctrl, _, _ = valkyrie
+    rng = np.random.default_rng(8)
+    nv, base = model.nv, list(ctrl.unactuated_dofs)
+    joints = [i for i in range(nv) if i not in base]
+    big = np.zeros((nv, 8))
+    big[joints] = np.linalg.qr(rng.normal(size=(len(joints), 8)))[0]
+    small = np.linalg.qr(rng.normal(size=(nv, 5)))[0]
+    small[base[-1]] = 0.0  # the last base row is never reached
+    a_null = 1e3 * big @ big.T + 1e2 * small @ small.T
+    tau_task = rng.normal(scale=50.0, size=nv)
+    system = np.concatenate([np.asarray(ctrl.selection, np.float64).T, -a_null], axis=1)
+    expected = np.linalg.pinv(system, rcond=1e-4) @ tau_task
+    torques, _, base_residual = torque_solution(
+        ctrl, jnp.asarray(a_null, jnp.float32), jnp.asarray(tau_task, jnp.float32), 1e-8
+    )
+    np.testing.assert_allclose(torques, expected[: model.nu], atol=0.05 * np.abs(tau_task).max())
+    assert abs(float(base_residual[-1]) + tau_task[base[-1]]) < 1e-3 * abs(tau_task[base[-1]])
+
+
 def test_wblc_matches_mujoco_forward_dynamics(valkyrie):
     """With MuJoCo's contact forces replaced by the QP's, MuJoCo's own forward dynamics
     (mj_forward without contacts + applied forces) reproduce qdd^d."""
