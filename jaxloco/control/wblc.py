@@ -11,7 +11,7 @@ tick's QP solution:
    the soft angular part (the CAM task's PD command wherever the CAM is free in the
    hierarchy); the rate the forces achieve sets the CAM task's command (Eq. 15);
 4. torques by Eq. 16-19: ``[U', -A N] [tau; qdd_res] = A qdd_task + b + g - J_r' F_r``,
-   solved by a thresholded pseudo-inverse.
+   its minimum-norm least-squares solution (:func:`torque_solution`).
 
 Sign convention: ``F_r`` is the force of the ground *on the robot* (MuJoCo's), so Eq. 11
 reads ``A qdd + b + g - J_r' F_r = U' tau``.
