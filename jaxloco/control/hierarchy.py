@@ -135,5 +135,7 @@ def prioritized_accelerations(
         y = y + projected.T @ (gram_pinv @ (cmd - rows @ y))
         projector = projector - projected.T @ (gram_pinv @ projected)
     qdd = jax.scipy.linalg.solve_triangular(chol, y, lower=True, trans="T")
-    residuals = tuple(cmd - jac @ qdd for jac, cmd in zip(jacobians, commands, strict=True))
+    # Every level's residual from one product (one operation instead of one per level).
+    stacked_residual = jnp.concatenate(commands, axis=0) - jnp.concatenate(jacobians, axis=0) @ qdd
+    residuals = tuple(stacked_residual[o : o + m] for o, m in zip(offsets, sizes, strict=True))
     return HierarchyResult(qdd, projector, chol, residuals)

@@ -331,7 +331,11 @@ def wblc_tick(
     # shortfall gives the paper's command (the achieved rate) where the CAM is free.
     shift = jnp.concatenate([jnp.ones(1, dtype), sol.angular - cam_rate])
     qdd_task = hier.qdd @ shift
-    level_residuals = tuple(r @ shift for r in hier.task_residuals)
+    stacked_residual = jnp.concatenate(hier.task_residuals, axis=0) @ shift
+    sizes = [r.shape[0] for r in hier.task_residuals]
+    level_residuals = tuple(
+        stacked_residual[sum(sizes[:k]) : sum(sizes[: k + 1])] for k in range(len(sizes))
+    )
     terms[cam_name] = terms[cam_name].replace(desired=terms[cam_name].desired + shift[1:])
 
     # Torques, Eq. 16-19.
