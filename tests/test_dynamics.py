@@ -270,7 +270,7 @@ def momentum_rate_by_jvp(model, data, averaged):
         )
 
     def momentum(e):
-        d = mjx.com_pos(mx, mjx.kinematics(mx, dx0.replace(qpos=qpos_at(e))))
+        d = mjx.crb(mx, mjx.com_pos(mx, mjx.kinematics(mx, dx0.replace(qpos=qpos_at(e)))))
         jcm = C.centroidal_momentum_matrix(mx, d)
         if averaged:
             jcm = jnp.linalg.solve(C.centroidal_inertia(mx, d), jcm)

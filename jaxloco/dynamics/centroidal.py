@@ -17,21 +17,10 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from mujoco import mjx
 
 from jaxloco.dynamics import se3
-from jaxloco.dynamics.jacobians import screw_axes, tree_masks
-
-
-def _body_jacobians(m: mjx.Model, d: mjx.Data):
-    """Per body: angular ``(nbody, 3, nv)`` and CoM-point ``(nbody, 3, nv)`` Jacobians."""
-    _, supports = tree_masks(m)
-    s = screw_axes(m, d)
-    mask = jnp.asarray(supports, s.dtype)  # (nbody, nv)
-    s_b = s[None] * mask[:, :, None]  # (nbody, nv, 6)
-    jac_w = jnp.swapaxes(s_b[..., :3], 1, 2)
-    jac_v = jnp.swapaxes(s_b[..., 3:] + jnp.cross(s_b[..., :3], d.xipos[:, None, :]), 1, 2)
-    return jac_w, jac_v
 
 
 def body_world_inertia(m: mjx.Model, d: mjx.Data):
@@ -43,16 +32,44 @@ def centre_of_mass(m: mjx.Model, d: mjx.Data):
     return m.body_mass @ d.xipos / jnp.sum(m.body_mass)
 
 
-def centroidal_momentum_matrix(m: mjx.Model, d: mjx.Data) -> jax.Array:
-    """``J_cm`` (6, nv): rows ``[angular momentum about the CoM; linear momentum]``."""
-    jac_w, jac_v = _body_jacobians(m, d)
-    inertia = body_world_inertia(m, d)
-    r = d.xipos - centre_of_mass(m, d)
-    angular = jnp.einsum("bij,bjn->in", inertia, jac_w) + jnp.einsum(
-        "b,bij,bjn->in", m.body_mass, se3.hat(r), jac_v
+def spatial_inertia_times(inertia, motion):
+    """Momentum ``[angular; linear]`` (..., 6) of a rigid inertia moving with ``motion``
+    ``[w; v]`` (..., 6), both at one point: MuJoCo's 10-vector ``inertia`` (..., 10) holds
+    the rotational inertia about that point ``(xx, yy, zz, xy, xz, yz)``, the first moment
+    ``m c`` (c: the centre of mass from the point) and the mass ``m``."""
+    w, v = motion[..., :3], motion[..., 3:]
+    xx, yy, zz, xy, xz, yz = (inertia[..., k] for k in range(6))
+    first_moment, mass = inertia[..., 6:9], inertia[..., 9:10]
+    rotational = jnp.stack(
+        [
+            xx * w[..., 0] + xy * w[..., 1] + xz * w[..., 2],
+            xy * w[..., 0] + yy * w[..., 1] + yz * w[..., 2],
+            xz * w[..., 0] + yz * w[..., 1] + zz * w[..., 2],
+        ],
+        -1,
     )
-    linear = jnp.einsum("b,bin->in", m.body_mass, jac_v)
-    return jnp.concatenate([angular, linear], axis=0)
+    angular = rotational + jnp.cross(first_moment, v)
+    linear = mass * v - jnp.cross(first_moment, w)
+    return jnp.concatenate([angular, linear], -1)
+
+
+def centroidal_momentum_matrix(m: mjx.Model, d: mjx.Data) -> jax.Array:
+    """``J_cm`` (6, nv): rows ``[angular momentum about the CoM; linear momentum]``.
+
+    Column ``i`` is the momentum of the bodies dof ``i`` moves, moving with that dof alone:
+    the composite rigid-body inertia of its subtree (MJX's ``crb``) times its motion axis
+    (``cdof``). MJX keeps both at the centre of mass of the dof's kinematic tree, with world
+    axes; the angular rows are shifted from there to the whole model's centre of mass (a
+    no-op for a single tree such as a humanoid). Needs :func:`jacobians.smooth` (``crb``).
+    """
+    bodies = np.asarray(m.dof_bodyid)
+    # MJX 3.x keeps the composite inertias with its JAX implementation's fields.
+    composite = d._impl.crb[bodies]
+    per_dof = spatial_inertia_times(composite, d.cdof)  # (nv, 6) at each tree's CoM
+    roots = np.asarray(m.body_rootid)[bodies]
+    offset = d.subtree_com[roots] - centre_of_mass(m, d)  # tree CoM from the whole CoM
+    angular = per_dof[:, :3] + jnp.cross(offset, per_dof[:, 3:])
+    return jnp.concatenate([angular, per_dof[:, 3:]], axis=1).T
 
 
 def centroidal_inertia(m: mjx.Model, d: mjx.Data) -> jax.Array:
