@@ -37,6 +37,7 @@ from mujoco import mjx
 from jaxloco.control import force_qp
 from jaxloco.control.hierarchy import prioritized_accelerations
 from jaxloco.control.pinv import pinv_psd
+from jaxloco.control.segments import Segments
 from jaxloco.control.tasks import (
     RobotSnapshot,
     TaskSpec,
@@ -146,10 +147,11 @@ class WBLCDiagnostics:
     """Floating-base rows of Eq. 17 left unmet (6,): 0 when the torques realise qdd^d."""
     torque_over_limit: jax.Array
     """(nu,) True where the torque exceeds the actuator's limit (not clipped here)."""
-    task_errors: dict
-    """Per task, its position error (rotation vector for orientations)."""
-    level_residuals: tuple
-    """Per hierarchy level, what it could not achieve (``e_k - J_k qdd_task``)."""
+    task_errors: Segments
+    """Per task (by name), its position error (rotation vector for orientations)."""
+    level_residuals: Segments
+    """Per hierarchy level (by level name or position), what it could not achieve
+    (``e_k - J_k qdd_task``)."""
 
 
 @struct.dataclass
@@ -331,10 +333,10 @@ def wblc_tick(
     # shortfall gives the paper's command (the achieved rate) where the CAM is free.
     shift = jnp.concatenate([jnp.ones(1, dtype), sol.angular - cam_rate])
     qdd_task = hier.qdd @ shift
-    stacked_residual = jnp.concatenate(hier.task_residuals, axis=0) @ shift
-    sizes = [r.shape[0] for r in hier.task_residuals]
-    level_residuals = tuple(
-        stacked_residual[sum(sizes[:k]) : sum(sizes[: k + 1])] for k in range(len(sizes))
+    level_residuals = Segments(
+        jnp.concatenate(hier.task_residuals, axis=0) @ shift,
+        tuple(cfg.hierarchy),
+        tuple(r.shape[0] for r in hier.task_residuals),
     )
     terms[cam_name] = terms[cam_name].replace(desired=terms[cam_name].desired + shift[1:])
 
@@ -359,7 +361,7 @@ def wblc_tick(
         qp_primal_residual=sol.primal_residual,
         base_residual=base_residual,
         torque_over_limit=jnp.abs(torques) > ctrl.torque_limits,
-        task_errors={n: t.error for n, t in terms.items()},
+        task_errors=Segments.stack({n: t.error for n, t in terms.items()}),
         level_residuals=level_residuals,
     )
     return WBLCOutput(torques, diagnostics, sol.warm_start)

@@ -45,6 +45,49 @@ class ChunkStarts:
     """(B, 4) push rows ``(magnitude, direction_rad, start, duration)``."""
 
 
+@dataclasses.dataclass(frozen=True)
+class TreeLayout:
+    """Where each leaf of a pytree lives when the tree is packed into one flat array per
+    dtype (static: shapes, dtypes and structure; hashable, so it can key a compile cache)."""
+
+    treedef: object
+    shapes: tuple[tuple[int, ...], ...]
+    dtypes: tuple[str, ...]
+
+    @classmethod
+    def of(cls, tree) -> TreeLayout:
+        leaves, treedef = jax.tree.flatten(tree)
+        return cls(
+            treedef,
+            tuple(tuple(np.shape(x)) for x in leaves),
+            tuple(np.dtype(x.dtype).name for x in leaves),
+        )
+
+    def _groups(self):
+        groups = {}
+        for k, dtype in enumerate(self.dtypes):
+            groups.setdefault(dtype, []).append(k)
+        return groups
+
+    def pack(self, tree) -> dict:
+        """``{dtype name: (size,) array}`` of the tree's leaves, raveled in leaf order."""
+        leaves = jax.tree.leaves(tree)
+        return {
+            dtype: jnp.concatenate([jnp.ravel(leaves[k]) for k in ids])
+            for dtype, ids in self._groups().items()
+        }
+
+    def unpack(self, packed: dict):
+        leaves = [None] * len(self.shapes)
+        for dtype, ids in self._groups().items():
+            offset = 0
+            for k in ids:
+                size = int(np.prod(self.shapes[k], dtype=int))
+                leaves[k] = packed[dtype][offset : offset + size].reshape(self.shapes[k])
+                offset += size
+        return jax.tree.unflatten(self.treedef, leaves)
+
+
 def mjx_loop_states(sim_model: mujoco.MjModel, starts: ChunkStarts, mx=None) -> LoopState:
     """MJX closed-loop states (leading axis: runs) from a chunk's start states."""
     m, d = sim_model, mujoco.MjData(sim_model)
@@ -86,13 +129,27 @@ class CBatchBackend:
         self.fall_height = fall_height
         self.nthread = nthread or os.cpu_count() or 1
 
-        def tick(t, qpos, qvel, cstate, outcome, push, alive):
-            torques, new_cstate, log = ctrl.step(t, qpos, qvel, cstate)
-            outcome = update_outcome(outcome, log, alive)
-            cstate = jax.tree.map(lambda a, b: jnp.where(alive, b, a), cstate, new_cstate)
-            return torques, push_force(push, t), cstate, outcome
+        self._ctrl = ctrl
+        self._ticks = {}  # one compiled tick per layout of the controller state
 
-        self._tick = jax.jit(jax.vmap(tick))
+    def _tick_for(self, layout: TreeLayout):
+        """The vmapped tick over packed states: ``(t, qpos, qvel, packed, push, alive) ->
+        (torques and push forces, packed)``. Packing the controller state and the outcome
+        into one array per dtype keeps the per-tick call to a handful of arrays (each
+        array passed to or from a jitted call costs ~1-2 us of dispatch)."""
+        if layout not in self._ticks:
+            ctrl = self._ctrl
+
+            def tick(t, qpos, qvel, packed, push, alive):
+                cstate, outcome = layout.unpack(packed)
+                torques, new_cstate, log = ctrl.step(t, qpos, qvel, cstate)
+                outcome = update_outcome(outcome, log, alive)
+                cstate = jax.tree.map(lambda a, b: jnp.where(alive, b, a), cstate, new_cstate)
+                actions = jnp.concatenate([torques, push_force(push, t)])
+                return actions, layout.pack((cstate, outcome))
+
+            self._ticks[layout] = jax.jit(jax.vmap(tick))
+        return self._ticks[layout]
 
     def run(self, starts: ChunkStarts, horizon_steps: int, progress=None) -> Outcome:
         m = self.model
@@ -104,21 +161,23 @@ class CBatchBackend:
         qpos, qvel, time = batch.bind("qpos"), batch.bind("qvel"), batch.bind("time")
         ctrl, xfrc = batch.bind("ctrl"), batch.bind("xfrc_applied")
         cstate = jax.tree.map(jnp.asarray, starts.controller)
-        outcome = jax.vmap(init_outcome)(cstate)
+        carry = (cstate, jax.vmap(init_outcome)(cstate))
+        layout = TreeLayout.of(jax.tree.map(lambda x: x[0], carry))
+        tick = self._tick_for(layout)
+        packed = jax.vmap(layout.pack)(carry)
         pushes = jnp.asarray(starts.pushes)
+        nu = m.nu
         t0 = starts.times.copy()
         alive = np.ones(n, bool)
         fall_time = np.full(n, np.inf)
         for _ in range(horizon_steps):
-            torques, force, cstate, outcome = self._tick(
-                jnp.asarray(time), jnp.asarray(qpos), jnp.asarray(qvel), cstate, outcome,
-                pushes, jnp.asarray(alive),
-            )  # fmt: skip
+            actions, packed = tick(time, qpos, qvel, packed, pushes, alive)
             ids = np.flatnonzero(alive)
             if ids.size == 0:
                 break
-            ctrl[:] = np.asarray(torques)
-            xfrc[:, self.push_body, :3] = np.asarray(force)
+            actions = np.asarray(actions)
+            ctrl[:] = actions[:, :nu]
+            xfrc[:, self.push_body, :3] = actions[:, nu:]
             before = time.copy()
             batch.step(ids)
             fell = alive & (~np.all(np.isfinite(qpos), axis=1) | (qpos[:, 2] < self.fall_height))
@@ -126,6 +185,7 @@ class CBatchBackend:
             alive &= ~fell
             if progress is not None:
                 progress(n)
+        _, outcome = jax.vmap(layout.unpack)(packed)
         fell = ~alive
         return outcome.replace(
             fell=jnp.asarray(fell),
