@@ -65,6 +65,8 @@ class PushSweepConfig:
     """The walking WBLC's rank threshold (``WBLCConfig.pinv_rtol``)."""
     whiten_tasks: bool = True
     """Threshold in whitened task rows (``WBLCConfig.whiten_tasks``)."""
+    torque_pinv_rtol: float = 1e-8
+    """The rank threshold of Eq. 19's torque solve (``WBLCConfig.torque_pinv_rtol``)."""
     gains_file: str = ""
     """A tuned gains file (``tune-gains``, ``tune-push``): its WBLC gains and its gait
     section (e.g. ``replan_gamma``) replace the defaults. Use a new run directory for it."""
@@ -95,6 +97,7 @@ def main(cfg) -> None:
                 walking_config(
                     pinv_rtol=cfg.pinv_rtol,
                     whiten_tasks=cfg.whiten_tasks,
+                    torque_pinv_rtol=cfg.torque_pinv_rtol,
                     force_qp=to_params(ForceQPParams, cfg.force_qp),
                 ),
                 cfg.gains_file,
