@@ -63,7 +63,8 @@ def stage_functions(ctrl, refs):
     gains = ctrl.default_gains()
 
     def snapshot(q, v):
-        return ctrl.snapshot(q, v)
+        # The arrays the tick reads, not the whole mjx.Data (~100 buffers to return).
+        return ctrl.snapshot(q, v).replace(data=None)
 
     def tasks(q, v):
         snap = ctrl.snapshot(q, v)
