@@ -2,7 +2,7 @@
 
     python benchmarks/bench_learning.py [--json PATH] [--quick]
 
-Targets (issue 3, 2 CPU cores): a policy with survival basin >= 50% in <= 10 s, compile
+Targets (2 CPU cores): a policy with survival basin >= 50% in <= 10 s, compile
 included (reported apart). Cases: the default (the FAST preset of Algorithm 1, then the
 pathwise refinement of :mod:`jaxloco.learning.refine`), Algorithm 1 alone, refinement
 alone (no Algorithm 1: 2-step rollouts from the initial weights, the fastest route to the

@@ -4,7 +4,7 @@
 
 Baselines measured in the same run: a vectorised NumPy implementation of the same PSP step
 (benchmarks/_numpy_psp.py, checked against the JAX planner first), NumPy 15-step loops, and
-the floor of a trivial jitted call. All float32. Targets (issue 2, 2 CPU cores):
+the floor of a trivial jitted call. All float32. Targets (2 CPU cores):
 >= 5e7 transitions/s and >= 10x NumPy; a jitted 15-step replan called from Python in
 <= 25 us; >= 3e6 batched 15-step replans/s.
 """

@@ -18,7 +18,7 @@ minimises that over the named numbers (``gait.replan_gamma``; ``task.kp`` / ``ta
 ``task.bandwidth`` of the walking WBLC).
 
 Which iterate is kept: the training loss looks 0.25 s ahead and its per-push gradients
-describe only its local slope (measured, session 16: the gradient lowered gamma at every
+describe only its local slope (measured: the gradient lowered gamma at every
 step, which the 2.5 s outcomes favour, while the loss itself rose; README), so every
 ``validation_every``-th iterate (and the last) runs the push sweep ``validation`` on
 MuJoCo C (full 2.5 s recoveries) and the one that recovers the most pushes is kept (ties:
@@ -94,10 +94,10 @@ other gait phases (48 pushes)."""
 class TunePushConfig:
     tuned: list[str] = field(default_factory=lambda: ["gait.replan_gamma"])
     """``gait.replan_gamma`` and ``task.kp`` / ``task.kd`` / ``task.bandwidth`` of the
-    walking WBLC. Default gamma alone: in a scan on the validation pushes (session 15,
-    README) gamma 0.3 recovered 16/24 against the hand-set 0.5's 13/24, while the CoM
+    walking WBLC. Default gamma alone: in a scan on the validation pushes
+    (README) gamma 0.3 recovered 16/24 against the hand-set 0.5's 13/24, while the CoM
     task's bandwidth x0.8 / x1.25 recovered 10 and 12; the loss does not see the later
-    falls of the stiffer CoM task (session 16)."""
+    falls of the stiffer CoM task."""
     max_log_scale: float = 2.0
     problem: ProblemSchema = field(default_factory=ProblemSchema)
     tune: TuneSchema = field(default_factory=lambda: TuneSchema(iterations=8, learning_rate=0.2))

@@ -43,7 +43,7 @@ def cpu_compiler_options() -> dict | None:
     """``jax.jit(..., compiler_options=...)`` for the RBF learning programs on the CPU.
 
     XLA:CPU's LLVM optimisation level 1 instead of its default: measured on the 2-core
-    Xeon VM (session 18), it runs the refinement step 1.5x faster and Algorithm 1's
+    Xeon VM, it runs the refinement step 1.5x faster and Algorithm 1's
     iteration 1.2x faster over a 600-iteration training run (2.2x over its first 10
     iterations), the RBF window gathers and scatters being what gains; it compiles as fast
     and gives the same results up to float round-off. ``None`` (XLA's defaults) on other backends.

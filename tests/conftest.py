@@ -5,7 +5,7 @@ persistent XLA compilation cache per test session, so tests that build the same 
 folder: every session compiles from scratch, nothing carries over between runs. Under
 ``pytest -n 2 --dist loadfile`` (``make test``) the controller process makes the folder
 and both workers inherit it through the environment, so a program one worker compiled is
-a cache hit for the other (three full suites ran this way in session 19, all passing)."""
+a cache hit for the other (full suites have run this way, all passing)."""
 
 import os
 import tempfile
@@ -29,7 +29,7 @@ def pytest_addoption(parser):
 
 # Files in the order the two workers should start them (``make test`` passes
 # ``--no-loadscope-reorder`` so xdist keeps it): the longest first, so no long file starts
-# last while the other worker idles. Measured on 2 cores (session 15, s of test time):
+# last while the other worker idles. Measured on 2 cores (s of test time):
 # locomotion 654, wblc 538, tuning 429, sweep 242, dynamics 167, training 112, the rest < 90.
 LONGEST_FIRST = ("test_locomotion", "test_wblc", "test_sweep", "test_tuning", "test_dynamics")
 

@@ -118,7 +118,7 @@ def test_paired_comparison_is_mcnemars_exact_test():
         assert got["recovered_a"] == a.sum() and got["recovered_b"] == b.sum()
         want = binomtest(only_a, only_a + only_b, 0.5).pvalue if only_a + only_b else 1.0
         assert got["p_value"] == pytest.approx(want, rel=1e-9)
-    # Session 15's held-out sweep: 10 pushes only the tuned gamma recovered, 6 only the
+    # A held-out sweep: 10 pushes only the tuned gamma recovered, 6 only the
     # hand-set one: not beyond chance.
     tuned = np.r_[np.ones(10, bool), np.zeros(6, bool), np.ones(10, bool)]
     hand = np.r_[np.zeros(10, bool), np.ones(6, bool), np.ones(10, bool)]

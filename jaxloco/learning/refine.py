@@ -28,7 +28,7 @@ one is kept, as in training.
 Why it exists: Algorithm 1 (batched, :data:`~jaxloco.learning.training.FAST`) plateaus near
 a 0.41 basin, and least-squares imitation of a 0.485 search policy by the same RBF reaches
 only ~0.42, while this refinement takes the same network to 0.51 on the training
-evaluator's draw and 0.50 on an independent one (README, issue 3). It is not in the paper.
+evaluator's draw and 0.50 on an independent one (README). It is not in the paper.
 """
 
 from __future__ import annotations
@@ -61,8 +61,8 @@ class RefineConfig:
     horizon: int = 4
     """Steps each start state is rolled through the planner. Measured from the shipped
     Algorithm 1 policy (300 steps; basin on the training evaluator's draw / an independent
-    one of 4096 states): 4 steps 0.513-0.514 / 0.503-0.505 (session 18: 52-60 ms a step);
-    2 steps 0.513 / 0.500 at half the cost; 8 steps (session 17) 0.510-0.511 / 0.498-0.501,
+    one of 4096 states): 4 steps 0.513-0.514 / 0.503-0.505 (52-60 ms a step);
+    2 steps 0.513 / 0.500 at half the cost; 8 steps 0.510-0.511 / 0.498-0.501,
     and one 8-step run collapsed to 0 after 425 steps. From the initial weights 2 steps
     reach the 50% basin fastest (README, fast route); 1 step does not learn (basin 0)."""
     learning_rate: float = 1e-3
@@ -82,7 +82,7 @@ class RefineConfig:
     average: float = 0.9
     """Decay of the running average of the weights that is evaluated and kept (0: the
     current weights). Averaging smooths the step-to-step noise of the fresh batches:
-    measured over two 300-step runs (session 18), the averaged weights' basin on the
+    measured over two 300-step runs, the averaged weights' basin on the
     evaluation draw was between 0.001 below and 0.018 above the current ones' at every
     evaluation after the first 75 steps, and above at most of them."""
     seed: int = 0

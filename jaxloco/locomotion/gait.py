@@ -111,7 +111,7 @@ class GaitParams:
     pushes); the heel then lifts, the flat-foot contact constraint no longer holds and the
     robot pitches over. Undisturbed walking lands with the CoM 0.15-0.17 m ahead. A step
     planned to land after the LIPM's CoM passes this bound lands then, on the capture step.
-    On issue 7's 40 pushes of 520 N (C backend) 0.16 / 0.18 / 0.19 / 0.2 recovered
+    On the 40-push 520 N criterion sweep (C backend) 0.16 / 0.18 / 0.19 / 0.2 recovered
     36 / 39 / 38 / 37 (37 without the bound)."""
     step_x_range: tuple[float, float] = (-0.45, 0.65)
     step_y_range: tuple[float, float] = (0.12, 0.6)
@@ -125,7 +125,7 @@ class GaitParams:
     contact constraint, standing on nothing."""
     max_touchdown_delay: float = 0.0
     """The longest a touch-down waits for a late foot (s); then the stance switches anyway.
-    0 (the default): no wait. On issue 7's 40 pushes of 520 N (C backend) waiting up to
+    0 (the default): no wait. On the 40-push 520 N criterion sweep (C backend) waiting up to
     0.1 s recovered 34 against 37 without, so it is an option, not the default."""
     late_landing_depth: float = 0.03
     """While a touch-down waits, the swing foot's height reference is this far below its
@@ -156,11 +156,11 @@ class GaitParams:
     reference and of the planner at run time (``make_walking_controller`` sets ``psp.h``).
     None: the height the step policy was trained at (``psp.h``, 1.005294). The authors'
     runtime planner used the measured CoM height (1.07 at our walking keyframe, knee 0.6
-    rad), but a crouch reaches farther with the swing foot: on issue 7's 40 pushes of 520 N
+    rad), but a crouch reaches farther with the swing foot: on the 40-push 520 N criterion sweep
     (C backend) 0.965 / 0.985 / 1.005 / 1.035 / 1.06 recovered 36 / 40 / 39 / 31 / 20, and
     over 320 pushes (steps 4 and 5, noisy starts) 0.985 recovered 314 against 308 at 1.005
     (11 only at 0.985, 5 only at 1.005). Those ran with the authors' force-QP points; with
-    the model's points now (session 22), steps 4 and 5 gave 80/80 at 0.985, 78/80 at
+    the model's points, steps 4 and 5 gave 80/80 at 0.985, 78/80 at
     1.005."""
     arm_return_rate: float = 2.0
     """Rate (1/s) at which the CAM reference brings the arms back to their posture (see

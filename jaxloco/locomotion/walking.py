@@ -196,7 +196,7 @@ def make_walking_controller(
     wblc = make_wblc(model, config)
     qpos0 = key_qpos(model, "walk") if keyframe_qpos is None else np.asarray(keyframe_qpos)
     # Jitted: op by op, the MJX kinematics behind it took 28.6 s (hundreds of small
-    # compiles, each too small for the persistent cache), against 2.2 s jitted (session 24).
+    # compiles, each too small for the persistent cache), against 2.2 s jitted.
     posture = jax.jit(wblc.hold_references)(jnp.asarray(qpos0))
     sites = tuple(
         mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, foot.frame) for foot in VALKYRIE_FEET

@@ -1,7 +1,7 @@
 """A sweep's chunks run side by side in worker processes, one per CPU core.
 
 Why processes: the batched WBLC tick keeps one core busy, not two. Measured on the 2-core
-VM (session 24, vmap batch 64, float32): 720-750 us per robot-tick with XLA's default two
+VM (vmap batch 64, float32): 720-750 us per robot-tick with XLA's default two
 threads, 655 us pinned to one core, and 665-675 us each for two processes pinned to the
 two cores at once, so two processes do twice the work of one. Two Python threads calling
 the same jitted controller at once hung inside XLA:CPU (the thread-pool hang the
@@ -113,7 +113,7 @@ def run_in_workers(
     if cache_dir:
         # Compile the chunk's tick here, on every core, into the persistent cache (one
         # tick of the first chunk, results discarded): the workers then load it instead
-        # of each compiling it on one core. Session 24, chunks of 20: a worker's first
+        # of each compiling it on one core. With chunks of 20, a worker's first
         # chunk took 90 s when it compiled the tick, 48 s when it loaded it.
         first = sweep_run._chunk_starts(walks, spec, table, chunks[todo[0]], chunk_size)
         walks.runner.run(first, 1)

@@ -14,7 +14,7 @@ A :class:`GainSpace` says which of them are tuned and how:
   natural frequency ``sqrt(kp)`` by ``exp(s)`` and keeps the damping ratio
   ``kd / (2 sqrt(kp))`` hand-set. One number per task instead of two, and the one that
   matters most: tuning kp and kd freely lowered kd until the task was under-damped
-  (session 12's tuning runs, README).
+  in earlier tuning runs.
 
 Gains not named stay as they are and get no gradient.
 

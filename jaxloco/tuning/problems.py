@@ -58,7 +58,7 @@ class ShakingLossParams:
     frequencies: tuple[float, ...] = ()
     """Shaking frequencies (Hz) the loss averages over, one rollout per frequency and push;
     empty: the shaking's own ``frequency_hz`` only. Gains tuned at one frequency overfit it
-    (session 9: the held-out error at 1.5 Hz doubled after tuning at 1 Hz)."""
+    (the held-out error at 1.5 Hz doubled after tuning at 1 Hz)."""
     track_weight: float = 1.0
     effort_weight: float = 0.01
     torque_scale: float = 300.0
@@ -192,7 +192,7 @@ class PushLossParams:
     with ``dcm``, ``tilt`` and the effort averaged over the horizon's ticks. The first
     term is a smooth count of the pushes likely to end in a fall: ``dcm`` spans four
     decades over pushes and a mean of it follows the few hopeless ones, while whether a
-    push is recovered turns on whether it is above a threshold (measured, session 16, on
+    push is recovered turns on whether it is above a threshold (measured on
     the 24 validation pushes at gammas 0.1/0.3/0.5/0.7 against their 2.5 s outcomes on
     MuJoCo C: ``dcm`` > 0.02 marked the falls of 79-88% of pushes; the mean of ``dcm``
     ranked gamma 0.5 best, the soft count ranked the gammas as the outcomes did).
@@ -209,7 +209,7 @@ class PushLossParams:
       the plan unchanged does not.
     - ``"plan"``: ``xi_plan`` is the capture point of the step as planned before the push,
       at the same time: how far the push threw the robot off that plan. It penalises
-      leaving the old plan, which is what recovery needs (measured, session 15: gamma
+      leaving the old plan, which is what recovery needs (measured: gamma
       0.5 -> 0.41 raised this loss by 20% while recovering more validation pushes).
 
     ``tilt`` is the squared change of the pelvis's up axis since the push began. Both are
@@ -240,7 +240,7 @@ class PushLossParams:
     risk_temperature: float = 0.5
     """Width of the soft count's step in ``log(dcm)``."""
     dcm_weight: float = 0.0
-    """The mean of ``dcm`` itself (session 15 used 100 with ``dcm_reference="plan"``)."""
+    """The mean of ``dcm`` itself (100 with ``dcm_reference="plan"`` is a tested setting)."""
     tilt_weight: float = 10.0
     effort_weight: float = 0.001
     """Small: the effort term is about 6 (mean of 8 pushes of 650 N over 0.25 s, torques
