@@ -367,7 +367,7 @@ def test_push_of_zero_impulse_is_the_nominal_state_and_pushes_act_as_expected():
 
 
 def test_survival_basin_of_the_fixed_nominal_action():
-    """The issue's reference figure: a fixed action (0.25, 0.2, 0) survives ~21% of the box."""
+    """A reference figure: a fixed action (0.25, 0.2, 0) survives ~21% of the box."""
     fixed = lambda s: jnp.asarray([0.25, 0.2, 0.0], s.dtype)  # noqa: E731
     fraction, states, steps = jax.jit(lambda k: survival_basin(fixed, P, k, 4096))(
         jax.random.key(0)

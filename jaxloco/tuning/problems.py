@@ -9,7 +9,7 @@ on the pelvis (robustness: a batch of pushes is averaged). Its loss is
     + w_fall * fraction of ticks fallen
 
 with every mean over time and over the batch of pushes (``p``: the feet's contact points,
-averaged over the points). The CoM term is the smooth surrogate of falling the issue asks
+averaged over the points). The CoM term is the smooth surrogate of falling that push recovery asks
 for (a pushed robot that falls first drifts away); the slip term catches the slow creep of
 the feet under the shaking's oscillating loads, which stiffer body gains speed up and which
 degrades tracking (or ends in a fall) seconds later, beyond any horizon that is affordable
