@@ -476,3 +476,22 @@ def test_body_shaking_without_joint_ranges_h2_tracks_better(tmp_path):
     summary = json.loads((tmp_path / "run" / "body_shaking.json").read_text())
     assert not any(r["fell"] for r in summary["results"].values())
     assert summary["h2_tracks_better"]
+
+
+def test_segments_read_each_piece_by_name_or_position():
+    from jaxloco.control.segments import Segments
+
+    pieces = {"a": jnp.arange(3.0), "b": jnp.arange(5.0) + 10, "c": jnp.asarray([7.0])}
+    seg = Segments.stack(pieces)
+    assert seg.sizes == (3, 5, 1) and seg.values.shape == (9,)
+    for k, (name, value) in enumerate(pieces.items()):
+        np.testing.assert_array_equal(seg[name], value)
+        np.testing.assert_array_equal(seg[k], value)
+    np.testing.assert_array_equal(seg[-1], pieces["c"])
+    # Leading (batch) axes are kept: the pytree's leaf is the stacked array.
+    batched = jax.vmap(lambda x: Segments.stack({"a": x, "b": 2 * x}))(jnp.ones((4, 2)))
+    assert batched["b"].shape == (4, 2) and float(batched["b"][0, 0]) == 2.0
+    with pytest.raises(KeyError, match="'d' is not one of"):
+        seg["d"]
+    with pytest.raises(IndexError):
+        seg[3]
