@@ -48,7 +48,10 @@ class ChunkStarts:
 @dataclasses.dataclass(frozen=True)
 class TreeLayout:
     """Where each leaf of a pytree lives when the tree is packed into one flat array per
-    dtype (static: shapes, dtypes and structure; hashable, so it can key a compile cache)."""
+    dtype (static: shapes, dtypes and structure; hashable, so it can key a compile cache).
+
+    Not ``jax.flatten_util.ravel_pytree``: that casts every leaf to one common dtype, and
+    the outcome's integer counters and boolean flags keep their own here."""
 
     treedef: object
     shapes: tuple[tuple[int, ...], ...]
