@@ -21,7 +21,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from jaxloco.runtime import quiet_jax_logs, to_jsonable  # noqa: E402
+from jaxloco.runtime import configure, quiet_jax_logs, to_jsonable  # noqa: E402
+
+configure()  # before any benchmark computes: the XLA options users run with
 
 
 def parse_args(description: str) -> argparse.Namespace:

@@ -28,7 +28,13 @@ from jaxloco.control.gains import apply_gains_file
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams
 from jaxloco.dynamics.model import load_valkyrie
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.runtime import (
+    configure,
+    enable_compilation_cache,
+    quiet_jax_logs,
+    watchdog,
+    write_json,
+)
 from jaxloco.sim.shaking import shaking_metrics, simulate_shaking
 
 log = logging.getLogger(__name__)
@@ -141,4 +147,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

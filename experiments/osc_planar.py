@@ -30,7 +30,7 @@ from omegaconf import OmegaConf
 from jaxloco.dynamics import jacobians as J
 from jaxloco.dynamics.model import keyframe_qpos, load_model
 from jaxloco.dynamics.terms import joint_space_terms
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
 
 log = logging.getLogger(__name__)
 
@@ -155,4 +155,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

@@ -31,7 +31,7 @@ from jaxloco.planner import (
     sample_com_trajectory,
     turn_schedule,
 )
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
 from jaxloco.viz import plot_phase_portraits, plot_walk
 
 log = logging.getLogger(__name__)
@@ -170,4 +170,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

@@ -27,7 +27,7 @@ from jaxloco.learning import LearnedPlanner, init_train_state, load_planner, ste
 from jaxloco.learning.checkpoint import DEFAULT_POLICY, assets_dir, load_checkpoint_config
 from jaxloco.learning.starts import uniform_states
 from jaxloco.planner import make_lookahead_policy, plan_steps, sample_com_trajectory
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
 from jaxloco.tuning.step_planner import GradientPlannerParams, make_gradient_policy
 from jaxloco.viz import plot_phase_portraits
 from jaxloco.viz.learning import plot_value_map
@@ -159,4 +159,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

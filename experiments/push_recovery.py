@@ -36,7 +36,13 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import plan_steps
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.runtime import (
+    configure,
+    enable_compilation_cache,
+    quiet_jax_logs,
+    watchdog,
+    write_json,
+)
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
@@ -257,4 +263,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

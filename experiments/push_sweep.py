@@ -30,7 +30,7 @@ from jaxloco.control.force_qp import ForceQPParams
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import CLOSED_LOOP_QP, walking_config
 from jaxloco.locomotion import GaitParams
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog
+from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, watchdog
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep import SweepSpec, run_sweep, write_report
 
@@ -65,6 +65,9 @@ class PushSweepConfig:
     """The walking WBLC's rank threshold (``WBLCConfig.pinv_rtol``)."""
     whiten_tasks: bool = True
     """Threshold in whitened task rows (``WBLCConfig.whiten_tasks``)."""
+    hierarchy_inverse: str = ""
+    """``damped`` or ``truncated`` at every level (``WBLCConfig.hierarchy_inverse``); empty:
+    the walking preset's (``presets.WALKING_INVERSES``)."""
     torque_pinv_rtol: float = 1e-8
     """The rank threshold of Eq. 19's torque solve (``WBLCConfig.torque_pinv_rtol``)."""
     gains_file: str = ""
@@ -99,6 +102,11 @@ def main(cfg) -> None:
                     whiten_tasks=cfg.whiten_tasks,
                     torque_pinv_rtol=cfg.torque_pinv_rtol,
                     force_qp=to_params(ForceQPParams, cfg.force_qp),
+                    **(
+                        {"hierarchy_inverse": cfg.hierarchy_inverse}
+                        if cfg.hierarchy_inverse
+                        else {}
+                    ),
                 ),
                 cfg.gains_file,
             ),
@@ -116,4 +124,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

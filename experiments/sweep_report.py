@@ -6,6 +6,7 @@ jaxloco sweep-report outputs/2026-11-23/10-00-00
 import argparse
 import sys
 
+from jaxloco.runtime import configure
 from jaxloco.sweep import write_report
 
 
@@ -24,4 +25,5 @@ def main(argv=None) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

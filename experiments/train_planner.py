@@ -39,7 +39,7 @@ from jaxloco.learning import (
 from jaxloco.learning.checkpoint import load_checkpoint_config, load_train_state
 from jaxloco.learning.training import params_fingerprint
 from jaxloco.planner import PSPParams
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
 from jaxloco.viz.learning import plot_learning_curve
 
 log = logging.getLogger(__name__)
@@ -162,4 +162,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

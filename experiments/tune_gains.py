@@ -51,7 +51,13 @@ from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams
 from jaxloco.control.tasks import default_gains
 from jaxloco.dynamics.model import load_valkyrie
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.runtime import (
+    configure,
+    enable_compilation_cache,
+    quiet_jax_logs,
+    watchdog,
+    write_json,
+)
 from jaxloco.sim.shaking import shaking_metrics, shaking_simulator
 from jaxloco.tuning.gains import GainSpace, tuned_values
 from jaxloco.tuning.optimize import TuneConfig, recorded_params, tune_in_dir
@@ -346,4 +352,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

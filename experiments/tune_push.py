@@ -58,7 +58,13 @@ from jaxloco.control.presets import walking_config
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.locomotion import GaitParams
 from jaxloco.locomotion.walking import make_walking_controller
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.runtime import (
+    configure,
+    enable_compilation_cache,
+    quiet_jax_logs,
+    watchdog,
+    write_json,
+)
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
 from jaxloco.sweep import SweepSpec, paired_comparison, run_sweep, write_report
 from jaxloco.tuning.gains import GainSpace, tuned_values
@@ -390,4 +396,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

@@ -29,7 +29,13 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import turn_schedule
-from jaxloco.runtime import enable_compilation_cache, quiet_jax_logs, watchdog, write_json
+from jaxloco.runtime import (
+    configure,
+    enable_compilation_cache,
+    quiet_jax_logs,
+    watchdog,
+    write_json,
+)
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
@@ -173,4 +179,5 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
+    configure()
     main()

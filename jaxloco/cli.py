@@ -65,6 +65,9 @@ def main(argv: list[str] | None = None) -> None:
             f"jaxloco: unknown experiment {argv[0]!r}; choose from: {', '.join(experiments)}"
         )
     script = experiments[name]
+    from jaxloco.runtime import configure  # noqa: PLC0415 (listing needs no JAX)
+
+    configure()
     # Hydra reads sys.argv and names the job after the script.
     sys.argv = [str(script), *argv[1:]]
     sys.path.insert(0, str(script.parent))

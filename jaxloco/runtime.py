@@ -25,6 +25,43 @@ def assets_dir() -> Path:
     return Path(env) if env else Path(__file__).resolve().parents[1] / "assets"
 
 
+SMALL_LOOP_BYTES = 16_000
+"""XLA:CPU compiles a while loop (``lax.scan``, ``fori_loop``) whose one iteration touches
+fewer bytes than this into a single kernel, instead of dispatching each operation of each
+iteration separately (XLA's own default: 1 kB). 16 kB takes in the force QP's ADMM loop of
+one robot (~6 kB a step), which then runs ~2x faster, and leaves out the same loop batched
+over 16 or more robots (~90 kB and up), which is faster dispatched."""
+
+
+def configure(small_loop_bytes: int = SMALL_LOOP_BYTES) -> None:
+    """Set jaxloco's XLA:CPU options for this process, through ``XLA_FLAGS``.
+
+    Call it before JAX runs its first computation (the ``jaxloco`` command, the experiments,
+    the benchmarks and the tests do); processes started afterwards inherit it. Options the
+    user already set in ``XLA_FLAGS`` are kept as they are. It sets:
+
+    - ``--xla_cpu_enable_concurrency_optimized_scheduler=false``: with it on, XLA:CPU has
+      deadlocked (0% CPU, stuck in ``block_until_ready``) on vmapped programs with several
+      independent LAPACK calls; turning it off fixed every such hang we reproduced.
+    - ``xla_cpu_small_while_loop_byte_threshold`` (:data:`SMALL_LOOP_BYTES`).
+
+    Called after JAX's backends exist (after a first computation), it changes nothing
+    that takes effect.
+    """
+    if small_loop_bytes < 0:
+        raise ValueError(f"configure: small_loop_bytes must be >= 0; got {small_loop_bytes}")
+    flags = os.environ.get("XLA_FLAGS", "")
+    wanted = []
+    if "xla_cpu_enable_concurrency_optimized_scheduler" not in flags:
+        wanted.append("--xla_cpu_enable_concurrency_optimized_scheduler=false")
+    if "xla_backend_extra_options" not in flags:
+        wanted.append(
+            f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={small_loop_bytes}"
+        )
+    if wanted:
+        os.environ["XLA_FLAGS"] = " ".join([flags, *wanted]).strip()
+
+
 def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path:
     """Turn on JAX's persistent compilation cache so a second run skips XLA compiles.
 

@@ -13,8 +13,9 @@ import tempfile
 import jax
 import pytest
 
-from jaxloco.runtime import enable_compilation_cache
+from jaxloco.runtime import configure, enable_compilation_cache
 
+configure()  # the XLA options the CLI and benchmarks use, before any test computes
 jax.config.update("jax_enable_x64", True)
 if "JAXLOCO_TEST_CACHE_DIR" not in os.environ:  # the xdist controller, or a plain run
     _CACHE = tempfile.TemporaryDirectory(prefix="jaxloco-test-xla-")  # removed at exit

@@ -9,7 +9,7 @@ import pytest
 from jax.test_util import check_grads
 
 from jaxloco.control.hierarchy import prioritized_accelerations
-from jaxloco.control.pinv import pinv_psd, rank
+from jaxloco.control.pinv import damped_pinv_psd, pinv_psd, rank
 from jaxloco.control.presets import wblc_config
 from jaxloco.control.wblc import make_wblc
 from jaxloco.dynamics import jacobians as J
@@ -47,6 +47,38 @@ def test_pinv_psd_gradient_at_constant_rank():
 
     check_grads(f, (b,), order=1, modes=("fwd", "rev"), atol=1e-6, rtol=1e-6)
     assert bool(jnp.all(jnp.isfinite(jax.grad(f)(b))))
+
+
+def test_damped_pinv_is_its_spectral_filter():
+    """``(M^2 + delta^2 I)^-1 M`` against its eigen-form ``lambda / (lambda^2 + delta^2)``:
+    kept directions inverted to ``(delta/lambda)^2``, lost ones dropped, no NaN at 0."""
+    b = RNG.normal(size=(6, 3))
+    m = b @ b.T
+    rtol = 1e-3
+    delta = rtol * np.max(np.diag(m))
+    w, v = np.linalg.eigh(m)
+    expected = (v * (w / (w * w + delta * delta))) @ v.T
+    np.testing.assert_allclose(damped_pinv_psd(jnp.asarray(m), rtol), expected, atol=1e-9)
+    exact = np.linalg.pinv(m, rcond=1e-8, hermitian=True)
+    np.testing.assert_allclose(
+        damped_pinv_psd(jnp.asarray(m), rtol), exact, atol=4 * (delta / w[-3]) ** 2 / w[-3]
+    )
+    # scale sets the damping when the matrix itself is (numerically) zero.
+    np.testing.assert_allclose(damped_pinv_psd(jnp.asarray(1e-12 * m), rtol, 1.0), 0, atol=1e-4)
+    assert np.all(np.asarray(damped_pinv_psd(jnp.zeros((4, 4)))) == 0)
+
+
+def test_damped_pinv_gradient():
+    """Smooth everywhere, so plain autodiff through the Cholesky solve: both modes
+    against finite differences, across a loss of rank."""
+    b = jnp.asarray(RNG.normal(size=(5, 3)))
+    w = jnp.asarray(RNG.normal(size=(5, 5)))
+
+    def f(b):
+        # A fixed scale fixes the damping, which is not differentiated.
+        return jnp.sum(w * damped_pinv_psd(b @ b.T, 1e-2, 100.0))
+
+    check_grads(f, (b,), order=1, modes=("fwd", "rev"), atol=1e-6, rtol=1e-6)
 
 
 # --- hierarchy --------------------------------------------------------------------------
@@ -160,6 +192,35 @@ def test_rank_threshold_ignores_row_units():
     missed = np.abs(np.asarray(jacs[0] @ raw.qdd - cmds[0]))
     assert missed[3:].max() > 1e-2 * np.abs(np.asarray(cmds[0][3:])).max()
     np.testing.assert_allclose(jacs[0][:3] @ raw.qdd, cmds[0][:3], rtol=1e-6)
+
+
+def test_damped_hierarchy_keeps_priorities_to_the_damping_squared():
+    """With damped inverses a lower task disturbs a higher one by ~(rtol/s)^2 of what it
+    asks (s: the freedom the higher levels leave it), and a nearly dependent row is
+    dropped instead of amplified."""
+    nv = 12
+    chol = jnp.asarray(np.linalg.cholesky(random_spd(nv, RNG)))
+    jacs, cmds = random_tasks(RNG, nv, (3, 4, 6, 5))
+    exact = prioritized_accelerations(jacs, cmds, chol, 1e-8)
+    damped = prioritized_accelerations(jacs, cmds, chol, 1e-3, inverse="damped")
+    for k in range(2):  # met exactly by the truncated hierarchy
+        err = np.abs(np.asarray(jacs[k] @ damped.qdd - jacs[k] @ exact.qdd)).max()
+        assert err < 1e-3 * np.abs(np.asarray(cmds[k])).max()
+    changed = prioritized_accelerations(
+        jacs, [*cmds[:3], cmds[3] * 10 + 1], chol, 1e-3, inverse="damped"
+    )
+    for k in range(3):
+        moved = np.abs(np.asarray(jacs[k] @ (changed.qdd - damped.qdd))).max()
+        assert moved < 1e-3 * np.abs(np.asarray(cmds[3] * 9 + 1)).max()
+    # A row 1e-4 free, far below the damping, commanded against the level above: a
+    # truncated inverse that keeps it amplifies the conflict ~1e4-fold, damped drops it.
+    near = [jacs[0], jnp.concatenate([jacs[0][:1] + 1e-4 * jacs[1][:1], jacs[1][1:]])]
+    big = [cmds[0], cmds[1] + 1.0]
+    amplified = prioritized_accelerations(near, big, chol, 1e-12)
+    kept = prioritized_accelerations(near, big, chol, 1e-2, inverse="damped")
+    assert np.abs(np.asarray(amplified.qdd)).max() > 20 * np.abs(np.asarray(kept.qdd)).max()
+    with pytest.raises(ValueError, match="inverse"):
+        prioritized_accelerations(jacs, cmds, chol, inverse="svd")
 
 
 def test_command_columns_solve_like_separate_calls():
@@ -495,3 +556,16 @@ def test_segments_read_each_piece_by_name_or_position():
         seg["d"]
     with pytest.raises(IndexError):
         seg[3]
+
+
+def test_config_names_a_bad_hierarchy_inverse():
+    """One inverse for all levels or one per level; anything else is refused by name."""
+    from jaxloco.control.presets import WALKING, WALKING_INVERSES, walking_config
+
+    assert walking_config().hierarchy_inverse == WALKING_INVERSES
+    assert len(WALKING_INVERSES) == len(WALKING)
+    assert wblc_config("H2", hierarchy_inverse="damped").hierarchy_inverse == "damped"
+    with pytest.raises(ValueError, match="hierarchy_inverse.*one per hierarchy level"):
+        walking_config(hierarchy_inverse=("damped", "truncated"))
+    with pytest.raises(ValueError, match="hierarchy_inverse"):
+        wblc_config("H1", hierarchy_inverse="svd")

@@ -12,7 +12,13 @@ and ``qdd_[task] = sum_k qdd_k`` (Eq. 9). The inverses are dynamically consisten
 higher-priority task acceleration unchanged, in the metric of the mass matrix. The
 ``(J A^-1 J')^+`` are thresholded pseudo-inverses (:mod:`jaxloco.control.pinv`), so a
 task that is redundant with the ones above it, or masked to zero rows, is handled without
-special cases. Each task's rows are first whitened (:func:`whiten_task`), so the rank
+special cases. With ``inverse="damped"`` (per level, or for all) they are damped
+least-squares inverses instead (:func:`jaxloco.control.pinv.damped_pinv_psd`): a task
+direction with freedom ``s`` (its whitened eigenvalue) is followed to a fraction
+``s^2 / (s^2 + rtol^2)`` of its command, a lower task disturbs it by about
+``(rtol/s)^2`` of what the lower task asks instead of not at all, and no command is
+amplified by more than ``1/(2 rtol)``. Each task's rows are first whitened
+(:func:`whiten_task`), so the rank
 threshold reads as "the fraction of a task direction left free by the levels above",
 whatever the units of its rows. The levels are a Python sequence of static shapes: the
 loop unrolls at trace time and the result batches with ``vmap``.
@@ -36,7 +42,12 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
-from jaxloco.control.pinv import pinv_psd
+from jaxloco.control.pinv import damped_pinv_psd, pinv_psd
+
+INVERSES = {"truncated": pinv_psd, "damped": damped_pinv_psd}
+"""The per-level inverses of ``J A^-1 J'``: ``truncated`` (the paper's thresholded
+pseudo-inverse, exact priorities) or ``damped`` (damped least squares, see
+:func:`jaxloco.control.pinv.damped_pinv_psd`)."""
 
 
 @struct.dataclass
@@ -45,7 +56,8 @@ class HierarchyResult:
     """``qdd_[task]`` (nv,) or (nv, r), Eq. 9."""
     projector: jax.Array
     """(nv, nv) orthogonal projector ``P`` onto the motions, in ``y = L' qdd`` coordinates,
-    that leave every task unchanged: ``N = L^-T P L'`` (see :attr:`null_space`)."""
+    that leave every task unchanged: ``N = L^-T P L'`` (see :attr:`null_space`). With the
+    damped inverse, symmetric with eigenvalues in [0, 1] and idempotent to ``rtol^2``."""
     mass_cholesky: jax.Array
     """(nv, nv) lower-triangular ``L`` with ``A = L L'``."""
     task_residuals: tuple
@@ -96,6 +108,7 @@ def prioritized_accelerations(
     mass_cholesky: jax.Array,
     rtol: float = 1e-8,
     whiten: bool = True,
+    inverse: str | Sequence[str] = "truncated",
 ) -> HierarchyResult:
     """Joint accelerations for tasks in priority order (first = highest), Eq. 9-10.
 
@@ -106,9 +119,18 @@ def prioritized_accelerations(
     ``whiten``: threshold each level in whitened rows (:func:`whiten_task`, ``rtol`` is then
     the fraction of a task direction left free); ``False`` thresholds relative to the
     unprojected task's largest diagonal entry of ``J A^-1 J'``, in the units of its rows.
+    ``inverse``: ``"truncated"`` or ``"damped"`` (:data:`INVERSES`), for every level or
+    one per level; with ``"damped"`` ``rtol`` is the damping and ``projector`` is only
+    approximately idempotent.
     """
     if len(jacobians) != len(commands) or not jacobians:
         raise ValueError("prioritized_accelerations: need one command per Jacobian, >= 1 task")
+    inverses = (inverse,) * len(jacobians) if isinstance(inverse, str) else tuple(inverse)
+    if len(inverses) != len(jacobians) or any(i not in INVERSES for i in inverses):
+        raise ValueError(
+            f"prioritized_accelerations: inverse must be one of {sorted(INVERSES)} or one "
+            f"per level ({len(jacobians)}), got {inverse!r}"
+        )
     chol = mass_cholesky
     nv = chol.shape[0]
     dtype = chol.dtype
@@ -120,7 +142,7 @@ def prioritized_accelerations(
     offsets = [sum(sizes[:k]) for k in range(len(sizes))]
     projector = jnp.eye(nv, dtype=dtype)
     y = jnp.zeros((nv, *jnp.shape(commands[0])[1:]), dtype)
-    for start, size, cmd in zip(offsets, sizes, commands, strict=True):
+    for start, size, cmd, name in zip(offsets, sizes, commands, inverses, strict=True):
         rows = stacked[start : start + size]
         if whiten:
             rows, cmd = whiten_task(rows, cmd)
@@ -131,7 +153,7 @@ def prioritized_accelerations(
             # Rank judged against the task's own size before projection (see pinv_psd).
             scale = jnp.max(jnp.sum(rows * rows, axis=1))
         projected = rows @ projector  # J_{k|prec(k)} in y coordinates
-        gram_pinv = pinv_psd(projected @ projected.T, rtol, scale)
+        gram_pinv = INVERSES[name](projected @ projected.T, rtol, scale)
         y = y + projected.T @ (gram_pinv @ (cmd - rows @ y))
         projector = projector - projected.T @ (gram_pinv @ projected)
     qdd = jax.scipy.linalg.solve_triangular(chol, y, lower=True, trans="T")

@@ -1,4 +1,4 @@
-"""Thresholded pseudo-inverse of a symmetric positive semi-definite matrix.
+"""Pseudo-inverses of symmetric positive semi-definite matrices: thresholded and damped.
 
 The hierarchy (Eq. 7, 10) inverts ``Lambda^-1 = J A^-1 J'`` for projected Jacobians that
 lose rank routinely: a task whose rows lie in the span of higher-priority tasks, feet out
@@ -13,6 +13,13 @@ exactly null, and inverting those made the standing robot fall (float64 stands a
 eigenvalues repeat, which they do here (every dropped eigenvalue is ~0). The derivative is
 therefore defined directly for a pseudo-inverse of constant rank (Golub and Pereyra,
 1973): ``dP = -P dM P + P P dM (I - M P) + (I - P M) dM P P``.
+
+:func:`damped_pinv_psd` is the smooth alternative: eigenvalue ``lambda`` maps to
+``lambda / (lambda^2 + delta^2)`` instead of ``1/lambda`` or 0, i.e. damped least squares
+(the singularity-robust inverse of task-priority control) applied to ``M``. It needs one
+Cholesky factorisation instead of an eigendecomposition (for the hierarchy's 3x3 to 14x14
+blocks, LAPACK's ``eigh`` costs 3-16 times a Cholesky), and ``jax.grad`` goes through it
+without a custom rule.
 """
 
 from __future__ import annotations
@@ -59,6 +66,30 @@ def _pinv_psd_jvp(rtol, primals, tangents):
     dm = 0.5 * (dm + dm.T)
     dp = -p @ dm @ p + p @ p @ dm @ (eye - m @ p) + (eye - p @ m) @ dm @ p @ p
     return p, dp
+
+
+def damped_pinv_psd(matrix, rtol: float = 1e-8, scale=None):
+    """``(M^2 + delta^2 I)^-1 M`` for symmetric PSD ``M``, ``delta = rtol * max(scale, max
+    diag M)`` (``rtol`` floored at 100 machine epsilons, as :func:`pinv_psd`).
+
+    Eigenvalues well above ``delta`` are inverted (``1/lambda`` to a relative error of
+    ``(delta/lambda)^2``), those well below are dropped (``lambda/delta^2``), and no
+    eigenvalue is amplified by more than ``1/(2 delta)``, where the thresholded inverse
+    jumps from ``1/delta`` to 0. ``scale`` as for :func:`pinv_psd` (the size the threshold
+    is relative to when ``M`` may be numerically zero); the damping is not differentiated.
+    An all-zero ``M`` with ``scale`` 0 gives 0.
+    """
+    matrix = jnp.asarray(matrix)
+    dtype = matrix.dtype
+    size = jnp.max(jnp.diagonal(matrix))
+    if scale is not None:
+        size = jnp.maximum(size, scale)
+    delta = jax.lax.stop_gradient(_relative_cutoff(rtol, dtype) * size)
+    # delta = 0 only for a zero matrix (PSD with zero diagonal), whose inverse is 0.
+    damping = jnp.where(delta > 0, delta * delta, 1.0)
+    eye = jnp.eye(matrix.shape[0], dtype=dtype)
+    factor = jax.scipy.linalg.cho_factor(matrix @ matrix + damping * eye, lower=True)
+    return jax.scipy.linalg.cho_solve(factor, matrix)
 
 
 def rank(matrix, rtol: float = 1e-8):

@@ -35,7 +35,7 @@ from flax import struct
 from mujoco import mjx
 
 from jaxloco.control import force_qp
-from jaxloco.control.hierarchy import prioritized_accelerations
+from jaxloco.control.hierarchy import INVERSES, prioritized_accelerations
 from jaxloco.control.pinv import pinv_psd
 from jaxloco.control.segments import Segments
 from jaxloco.control.tasks import (
@@ -90,6 +90,12 @@ class WBLCConfig:
     ``experiments/body_shaking.py``)."""
     whiten_tasks: bool = True
     """Threshold in whitened task rows (:func:`jaxloco.control.hierarchy.whiten_task`)."""
+    hierarchy_inverse: str | tuple[str, ...] = "truncated"
+    """How the levels invert their projected ``J A^-1 J'``, for all levels or one per level:
+    ``"truncated"`` (the paper's thresholded pseudo-inverse at ``pinv_rtol``, exact
+    priorities) or ``"damped"`` (damped least squares with damping ``pinv_rtol``: priorities
+    hold to ``(pinv_rtol/s)^2`` for a direction with freedom ``s``, and a Cholesky
+    factorisation replaces an eigendecomposition; see :mod:`jaxloco.control.hierarchy`)."""
     torque_pinv_rtol: float = 1e-8
     """The same for Eq. 19's ``[U', -A N]``."""
 
@@ -115,6 +121,17 @@ class WBLCConfig:
                 raise ValueError(f"WBLCConfig.{field}: {getattr(self, field)!r} is not a task")
         if not self.feet:
             raise ValueError("WBLCConfig.feet: needs at least one foot")
+        inverses = self.hierarchy_inverse
+        inverses = (inverses,) if isinstance(inverses, str) else inverses
+        if any(i not in INVERSES for i in inverses) or len(inverses) not in (
+            1,
+            len(self.hierarchy),
+        ):
+            raise ValueError(
+                f"WBLCConfig.hierarchy_inverse: one of {sorted(INVERSES)}, or a tuple of "
+                f"them, one per hierarchy level ({len(self.hierarchy)}); "
+                f"got {self.hierarchy_inverse!r}"
+            )
         for field in ("pinv_rtol", "torque_pinv_rtol"):
             if not 0 < getattr(self, field) < 1:
                 raise ValueError(f"WBLCConfig.{field}: must be in (0, 1)")
@@ -309,7 +326,7 @@ def wblc_tick(
             )
         )
     hier = prioritized_accelerations(
-        jacs, cmds, snap.mass_cholesky, cfg.pinv_rtol, cfg.whiten_tasks
+        jacs, cmds, snap.mass_cholesky, cfg.pinv_rtol, cfg.whiten_tasks, cfg.hierarchy_inverse
     )
 
     # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft. The angular target is

@@ -63,13 +63,6 @@ def basis_derivatives(u):
     return jnp.stack([basis(u), d1(u), jax.jacfwd(d1)(u)])
 
 
-# At u = 0 only the first three functions (and their derivatives) are non-zero: a lower
-# triangular system gives the first three control points from position, velocity and
-# acceleration. Computed once, in float64, with the same code the spline evaluates.
-_START = np.asarray(basis_derivatives(0.0), np.float64)[:, :3]
-_MID = np.asarray(basis(0.5), np.float64)
-
-
 def quintic(p0, v0, a0, p1, v1, a1, duration, t):
     """Quintic from (p0, v0, a0) at 0 to (p1, v1, a1) at ``duration``; held after it.
 
@@ -135,12 +128,15 @@ def make_swing(start_pos, target, t0, duration, mid_height, start_vel=None, star
     zero = jnp.zeros(3, dtype)
     vel = zero if start_vel is None else jnp.asarray(start_vel, dtype)
     acc = zero if start_acc is None else jnp.asarray(start_acc, dtype)
-    s = jnp.asarray(_START, dtype)
+    # At u = 0 only the first three functions (and their derivatives) are non-zero: a lower
+    # triangular system gives the first three control points from position, velocity and
+    # acceleration. Constants of the trace, from the same code the spline evaluates.
+    s = basis_derivatives(jnp.zeros((), dtype))[:, :3].astype(dtype)
     # Height control points: s[0] @ P = z, s[1] @ P = zd T, s[2] @ P = zdd T^2 over P0..P2.
     h0 = start_pos[2]
     h1 = (vel[2] * duration - s[1, 0] * h0) / s[1, 1]
     h2 = (acc[2] * duration**2 - s[2, 0] * h0 - s[2, 1] * h1) / s[2, 2]
-    mid = jnp.asarray(_MID, dtype)
+    mid = basis(jnp.asarray(0.5, dtype)).astype(dtype)
     partial = mid[0] * h0 + mid[1] * h1 + mid[2] * h2 + (mid[4] + mid[5] + mid[6]) * target[2]
     h3 = (mid_height - partial) / mid[3]
     # The curve lies in its control points' convex hull, so clamping them keeps the foot

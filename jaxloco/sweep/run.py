@@ -125,7 +125,7 @@ def run_sweep(
             "wblc_force_qp": dataclasses.asdict(controller_config.force_qp),
             "wblc_hierarchy": {
                 k: getattr(controller_config, k)
-                for k in ("pinv_rtol", "whiten_tasks", "torque_pinv_rtol")
+                for k in ("pinv_rtol", "whiten_tasks", "hierarchy_inverse", "torque_pinv_rtol")
             },
             "physics": None if physics is None else dataclasses.asdict(physics),
             "backend": backend,

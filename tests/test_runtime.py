@@ -1,0 +1,55 @@
+"""Process set-up: importing jaxloco changes nothing; ``configure()`` sets its XLA options
+before the first computation and keeps the user's own."""
+
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from jaxloco.runtime import configure
+
+PROBE = """
+import json, os
+before = os.environ.get("XLA_FLAGS")
+import jaxloco, jaxloco.control, jaxloco.locomotion, jaxloco.sweep, jaxloco.tuning
+from jax._src import xla_bridge
+imported = {"flags": os.environ.get("XLA_FLAGS"), "backends": xla_bridge.backends_are_initialized()}
+from jaxloco.runtime import configure
+configure()
+print(json.dumps({"before": before, "imported": imported, "after": os.environ.get("XLA_FLAGS")}))
+"""
+
+
+def probe(xla_flags):
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    if xla_flags is not None:
+        env["XLA_FLAGS"] = xla_flags
+    out = subprocess.run(
+        [sys.executable, "-c", PROBE], env=env, capture_output=True, text=True, timeout=300
+    )
+    assert out.returncode == 0, out.stderr
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def test_import_changes_nothing_and_configure_sets_the_flags():
+    seen = probe(None)
+    # Importing the packages neither sets flags nor starts JAX's backends (after which
+    # flags would be ignored).
+    assert seen["imported"] == {"flags": None, "backends": False}
+    assert "--xla_cpu_enable_concurrency_optimized_scheduler=false" in seen["after"]
+    assert "xla_cpu_small_while_loop_byte_threshold=16000" in seen["after"]
+
+
+def test_configure_keeps_the_users_flags():
+    mine = "--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold=0"
+    seen = probe(mine)
+    assert seen["after"].split().count(mine) == 1
+    assert seen["after"].count("xla_backend_extra_options") == 1
+    assert "concurrency_optimized_scheduler=false" in seen["after"]
+
+
+def test_configure_rejects_a_negative_threshold():
+    with pytest.raises(ValueError, match="small_loop_bytes"):
+        configure(small_loop_bytes=-1)
