@@ -15,7 +15,7 @@ import dataclasses
 
 import jax
 import jax.numpy as jnp
-from mujoco.mjx._src import math as mjx_math
+from brax import math as quat_math
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,7 +48,7 @@ def shaking_reference(params: ShakingParams, q0, t, frequency_hz=None):
     freq = params.frequency_hz if frequency_hz is None else frequency_hz
     one = jnp.ones_like(t)
     vel, acc = jax.jvp(lambda s: _angular_velocity(params, s, freq), (t,), (one,))
-    return mjx_math.quat_mul(_exp(_rotation_vector(params, t, freq)), q0), vel, acc
+    return quat_math.quat_mul(_exp(_rotation_vector(params, t, freq)), q0), vel, acc
 
 
 def _rotation_vector(params: ShakingParams, t, frequency_hz):
@@ -67,7 +67,7 @@ def _angular_velocity(params: ShakingParams, t, frequency_hz):
     quat, quat_dot = jax.jvp(
         lambda s: _exp(_rotation_vector(params, s, frequency_hz)), (t,), (jnp.ones_like(t),)
     )
-    return 2.0 * mjx_math.quat_mul(quat_dot, mjx_math.quat_inv(quat))[1:]
+    return 2.0 * quat_math.quat_mul(quat_dot, quat_math.quat_inv(quat))[1:]
 
 
 def _exp(rotvec):

@@ -9,7 +9,7 @@ is ``ad_{V} S`` (the Lie bracket; paper Eq. 29 with ``Ad_{T'} = Ad_T ad_V``).
 from __future__ import annotations
 
 import jax.numpy as jnp
-from mujoco.mjx._src import math as mjx_math
+from brax import math as quat_math
 
 
 def hat(w):
@@ -62,7 +62,7 @@ def rotation_error(q_desired, q):
     Jacobians). The shorter way round is taken; the formula is smooth at zero error (its
     gradient too), where ``2 atan2(|v|, w) / |v| -> 2 / w``.
     """
-    e = mjx_math.quat_mul(q_desired, mjx_math.quat_inv(q))
+    e = quat_math.quat_mul(q_desired, quat_math.quat_inv(q))
     e = jnp.where(e[0] < 0, -e, e)
     w, v = e[0], e[1:]
     s2 = v @ v
