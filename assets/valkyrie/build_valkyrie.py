@@ -2,7 +2,7 @@
 
     python assets/valkyrie/build_valkyrie.py          # rewrites valkyrie.xml next to it
 
-The numbers are those of ``shared/reference/valkyrie.md`` (NASA's val_description, reduced
+The numbers are NASA's published Valkyrie description (val_description), reduced
 to 28 joints: wrists and fingers fixed), kept here once and mirrored for the right side.
 A test checks that the committed XML is exactly what this script writes.
 

@@ -6,7 +6,7 @@
 - :func:`standing_config`: the walking task set in double support.
 
 Each starts with the contact constraint (see :mod:`jaxloco.control.wblc`). CoM gains are
-the authors' (``shared/reference/paper-details.md``); the rest are ours, chosen so the
+the authors' (from their code); the rest are ours, chosen so the
 robot stands and shakes stably at 1 kHz (the paper gives none).
 """
 

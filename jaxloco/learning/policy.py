@@ -1,6 +1,6 @@
 """The RBF actor-critic network: a value and a Gaussian policy truncated to the action box.
 
-Paper: Section II-B, Eq. 1-2, Fig. 5; `shared/reference/paper-details.md`. One weight table
+Paper: Section II-B, Eq. 1-2, Fig. 5, and the authors' code. One weight table
 with 7 outputs over the local RBF features (:mod:`jaxloco.learning.rbf`):
 
 - output 0: the value ``v(s) = w . phi(s)``;

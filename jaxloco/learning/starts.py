@@ -1,6 +1,6 @@
 """Start states for training and evaluation: pushed nominal states and uniform draws.
 
-Paper Section II-C and `shared/reference/paper-details.md`: the nominal apex state
+Paper Section II-C and the authors' code: the nominal apex state
 ``(0.056, 0.2, 0)`` hit by impulses of 10, 30 and 50 N s over 0.1 s at angles from -90 to
 90 degrees on a 136 kg LIPM, with noise of about two grid spacings; and uniform draws over
 the state box of Eq. 1.

@@ -1,8 +1,7 @@
 """Swing-foot trajectories: a cubic B-spline for the height, a quintic for the ground path.
 
 Paper Section V-B: "third degree B-splines, which guarantee acceleration continuity"; the
-authors' code drove the foot through a mid-point 0.1 m above the ground
-(``shared/reference/paper-details.md``).
+authors' code drove the foot through a mid-point 0.1 m above the ground.
 
 - Height: 7 control points on the clamped uniform knot vector ``(0,0,0,0, 1/4, 1/2, 3/4,
   1,1,1,1)`` in normalised time ``u = (t - t0) / T``. The first three fix the start height,

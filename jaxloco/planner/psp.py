@@ -1,6 +1,6 @@
 """The analytic phase-space planner (PSP): one step, Algorithm 2 of the paper.
 
-Conventions (paper Section II-A, Appendix A; `shared/reference/paper-details.md`):
+Conventions (paper Section II-A, Appendix A, and the authors' code where the text is silent):
 
 - The *local frame* of a step has its origin at the stance foot, x along the walking
   direction and y lateral, pointing from the stance foot towards the side the next foot goes.
