@@ -567,5 +567,7 @@ def test_config_names_a_bad_hierarchy_inverse():
     assert wblc_config("H2", hierarchy_inverse="damped").hierarchy_inverse == "damped"
     with pytest.raises(ValueError, match="hierarchy_inverse.*one per hierarchy level"):
         walking_config(hierarchy_inverse=("damped", "truncated"))
+    with pytest.raises(ValueError, match="hierarchy_inverse.*one per hierarchy level"):
+        walking_config(hierarchy_inverse=("damped",))  # a tuple names every level
     with pytest.raises(ValueError, match="hierarchy_inverse"):
         wblc_config("H1", hierarchy_inverse="svd")

@@ -122,10 +122,10 @@ class WBLCConfig:
         if not self.feet:
             raise ValueError("WBLCConfig.feet: needs at least one foot")
         inverses = self.hierarchy_inverse
-        inverses = (inverses,) if isinstance(inverses, str) else inverses
-        if any(i not in INVERSES for i in inverses) or len(inverses) not in (
-            1,
-            len(self.hierarchy),
+        one_for_all = isinstance(inverses, str)
+        inverses = (inverses,) if one_for_all else tuple(inverses)
+        if any(i not in INVERSES for i in inverses) or (
+            not one_for_all and len(inverses) != len(self.hierarchy)
         ):
             raise ValueError(
                 f"WBLCConfig.hierarchy_inverse: one of {sorted(INVERSES)}, or a tuple of "
