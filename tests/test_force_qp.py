@@ -275,8 +275,8 @@ def test_warm_started_closed_loop_settings_track_the_cold_solution():
     """The walking preset's fewer iterations rely on each tick starting from the last
     tick's solution: along a sequence of problems at 1 kHz (a CoM force swinging sideways,
     weight shifting to one foot over 0.6 s) they give the cold solution's forces, except
-    for a few ticks after the set of active constraints changes (measured at 200
-    iterations: median 4e-6 N, largest 4.4 N)."""
+    for a few ticks after the set of active constraints changes (measured with the preset,
+    150 iterations at rho 0.02: median 1.2e-4 N, largest 2.3 N)."""
     from jaxloco.control.presets import CLOSED_LOOP_QP, walking_config
 
     assert walking_config().force_qp == CLOSED_LOOP_QP
@@ -308,7 +308,7 @@ def test_warm_started_closed_loop_settings_track_the_cold_solution():
     error = np.abs(np.asarray(warm.forces) - np.asarray(cold.forces)).max(axis=(1, 2))[5:]
     assert np.median(error) < 1e-3, np.median(error)
     assert np.mean(error < 0.1) > 0.9, np.mean(error < 0.1)
-    assert error.max() < 10.0, error.max()
+    assert error.max() < 5.0, error.max()
 
 
 def test_float32_forces_do_not_depend_on_how_the_solve_is_batched():

@@ -35,7 +35,6 @@ formulas above, so the thresholds decide the same way.
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Sequence
 
 import jax
@@ -92,14 +91,23 @@ def whiten_task(jacobian, command):
     single task span 1e-4..1 of its largest before any projection, and a relative threshold
     drops directions that are not lost: at ``rtol = 1e-3`` the two-foot contact constraint
     lost 4 of its 12 directions at the walking keyframe.
+
+    Batched over leading axes: ``jacobian`` ``(..., m, nv)``, ``command`` ``(..., m, r)``
+    (or ``(m,)`` unbatched).
     """
-    gram = jacobian @ jacobian.T
+    gram = jacobian @ jnp.swapaxes(jacobian, -1, -2)
     dtype = gram.dtype
-    largest = jnp.max(jnp.diagonal(gram))
+    largest = jnp.max(jnp.diagonal(gram, axis1=-2, axis2=-1), axis=-1)[..., None, None]
     jitter = jnp.where(largest > 0, 100.0 * jnp.finfo(dtype).eps * largest, 1.0)
-    chol = jnp.linalg.cholesky(gram + jitter * jnp.eye(gram.shape[0], dtype=dtype))
-    solve = functools.partial(jax.scipy.linalg.solve_triangular, chol, lower=True)
-    return solve(jacobian), solve(command)
+    chol = jnp.linalg.cholesky(gram + jitter * jnp.eye(gram.shape[-1], dtype=dtype))
+    vector = command.ndim == jacobian.ndim - 1
+    rhs = command[..., None] if vector else command
+    # One triangular solve for the rows and the command.
+    solved = jax.scipy.linalg.solve_triangular(
+        chol, jnp.concatenate([jacobian, rhs], axis=-1), lower=True
+    )
+    whitened, command = solved[..., : jacobian.shape[-1]], solved[..., jacobian.shape[-1] :]
+    return whitened, command[..., 0] if vector else command
 
 
 def prioritized_accelerations(
@@ -135,29 +143,57 @@ def prioritized_accelerations(
     nv = chol.shape[0]
     dtype = chol.dtype
     sizes = [j.shape[0] for j in jacobians]
+    offsets = [sum(sizes[:k]) for k in range(len(sizes))]
+    command_shape = jnp.shape(commands[0])[1:]
+    cmds = [jnp.reshape(c, (c.shape[0], -1)).astype(dtype) for c in commands]  # (m_k, r)
+    r = cmds[0].shape[1]
     # Jt = J L^-T for every level at once: one triangular solve.
     stacked = jax.scipy.linalg.solve_triangular(
         chol, jnp.concatenate(jacobians, axis=0).T, lower=True
     ).T
-    offsets = [sum(sizes[:k]) for k in range(len(sizes))]
-    projector = jnp.eye(nv, dtype=dtype)
-    y = jnp.zeros((nv, *jnp.shape(commands[0])[1:]), dtype)
-    for start, size, cmd, name in zip(offsets, sizes, commands, inverses, strict=True):
-        rows = stacked[start : start + size]
+    levels = [(stacked[o : o + m], c) for o, m, c in zip(offsets, sizes, cmds, strict=True)]
+    if whiten:
+        # Levels of equal size are whitened together: one batched factorisation each.
+        for m in sorted(set(sizes)):
+            group = [k for k, size in enumerate(sizes) if size == m]
+            rows, cmd = whiten_task(
+                jnp.stack([levels[k][0] for k in group]), jnp.stack([levels[k][1] for k in group])
+            )
+            for i, k in enumerate(group):
+                levels[k] = (rows[i], cmd[i])
+    # State [y | P] (nv, r + nv): the accumulated solution in y = L' qdd coordinates and the
+    # orthogonal projector onto what the levels so far leave free; one product per level
+    # updates both. The first level sees y = 0 and P = I, so its products with them are
+    # skipped (XLA does not fold a product with a constant identity).
+    state = None
+    for (rows, cmd), name in zip(levels, inverses, strict=True):
         if whiten:
-            rows, cmd = whiten_task(rows, cmd)
             # Whitened, the unprojected task's J A^-1 J' is I: each eigenvalue of the
             # projected one is the fraction of a task direction the levels above leave free.
             scale = jnp.ones((), dtype)
         else:
             # Rank judged against the task's own size before projection (see pinv_psd).
             scale = jnp.max(jnp.sum(rows * rows, axis=1))
-        projected = rows @ projector  # J_{k|prec(k)} in y coordinates
+        if state is None:
+            projected, unmet = rows, cmd  # J_{k|prec(k)} in y coordinates; e_k - Jt y
+        else:
+            both = rows @ state
+            projected, unmet = both[:, r:], cmd - both[:, :r]
         gram_pinv = INVERSES[name](projected @ projected.T, rtol, scale)
-        y = y + projected.T @ (gram_pinv @ (cmd - rows @ y))
-        projector = projector - projected.T @ (gram_pinv @ projected)
+        step = projected.T @ (gram_pinv @ jnp.concatenate([unmet, -projected], axis=1))
+        if state is None:
+            state = step + jnp.concatenate(
+                [jnp.zeros((nv, r), dtype), jnp.eye(nv, dtype=dtype)], axis=1
+            )
+        else:
+            state = state + step
+    y, projector = state[:, :r], state[:, r:]
     qdd = jax.scipy.linalg.solve_triangular(chol, y, lower=True, trans="T")
     # Every level's residual from one product (one operation instead of one per level).
-    stacked_residual = jnp.concatenate(commands, axis=0) - jnp.concatenate(jacobians, axis=0) @ qdd
-    residuals = tuple(stacked_residual[o : o + m] for o, m in zip(offsets, sizes, strict=True))
+    stacked_residual = jnp.concatenate(cmds, axis=0) - jnp.concatenate(jacobians, axis=0) @ qdd
+    residuals = tuple(
+        stacked_residual[o : o + m].reshape((m, *command_shape))
+        for o, m in zip(offsets, sizes, strict=True)
+    )
+    qdd = qdd.reshape((nv, *command_shape))
     return HierarchyResult(qdd, projector, chol, residuals)

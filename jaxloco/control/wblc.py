@@ -416,11 +416,11 @@ def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float):
         schur = constraint @ h_inv_ct
         # K is the Schur complement of the whole system's M M' on the base rows, so its
         # rank is judged against the size of M M' (as a pseudo-inverse of the whole
-        # system would): max gear^2 + |A N|_2^2, with |A N|_2^2 <= |(A N)^2|_F (A N is
-        # symmetric PSD) within a factor sqrt(rank). Relative to K's own largest
+        # system would): max gear^2 + |A N|_2^2, bounded by |A N|_F^2 (within a factor of
+        # the rank; no product of A N with itself). Relative to K's own largest
         # eigenvalue, round-off directions of a nearly unreachable base were inverted
         # into torques of 1e5 N m.
-        scale = jnp.max(gear * gear) + jnp.sqrt(jnp.sum(jnp.square(a_null @ a_null)))
+        scale = jnp.max(gear * gear) + jnp.sum(jnp.square(a_null))
         multiplier = pinv_psd(schur, rtol, scale) @ (constraint @ free - target)
         qdd_res = free - h_inv_ct @ multiplier
         base_residual = constraint @ qdd_res - target
