@@ -90,12 +90,12 @@ def _qp_stand_in(points, in_contact, com, f_lin, f_ang, params, fz_max=None, war
     return force_qp.ForceQPSolution(forces, f_ang, zero, zero, zero > 0, zero > 0, warm_start)
 
 
-def _hierarchy_stand_in(jacs, cmds, mass_cholesky, rtol, whiten, inverse):
+def _hierarchy_stand_in(jacs, cmds, mass_cholesky, rtol, whiten, inverse, cholesky_inverse):
     nv = mass_cholesky.shape[0]
     # Touch every input so that nothing upstream is dead code.
     qdd = jnp.zeros((nv, cmds[0].shape[1])) + sum(jnp.sum(j) for j in jacs) * 0 + cmds[0][0]
     projector = jnp.eye(nv) * mass_cholesky[0, 0]
-    return hierarchy.HierarchyResult(qdd, projector, mass_cholesky, tuple(cmds))
+    return hierarchy.HierarchyResult(qdd, projector, mass_cholesky, cholesky_inverse, tuple(cmds))
 
 
 def _torque_stand_in(ctrl, a_null, tau_task, rtol):

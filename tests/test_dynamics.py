@@ -287,6 +287,11 @@ def test_eq31_holds_exactly_for_momentum_but_not_for_averaged_velocity():
     terms = joint_space_terms(mx, dx, smoothed=True)
     jcm = C.centroidal_momentum_matrix(mx, dx)
     eq31 = C.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis)
+    # The same by products with the Cholesky factor's inverse (as a WBLC tick computes it).
+    chol = jnp.linalg.cholesky(terms.mass_matrix)
+    chol_inv = jax.scipy.linalg.solve_triangular(chol, jnp.eye(chol.shape[0]), lower=True)
+    by_inverse = C.centroidal_bias(jcm, None, terms.coriolis, mass_cholesky_inverse=chol_inv)
+    np.testing.assert_allclose(by_inverse, eq31, rtol=1e-9, atol=1e-9)
     # Momentum: exact, angular and linear parts alike.
     np.testing.assert_allclose(eq31, momentum_rate_by_jvp(model, data, False), atol=1e-8)
     # An averaged velocity I_G^-1 h: Eq. 31 misses the d/dt(I_G^-1) h term.

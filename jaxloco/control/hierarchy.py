@@ -59,20 +59,20 @@ class HierarchyResult:
     damped inverse, symmetric with eigenvalues in [0, 1] and idempotent to ``rtol^2``."""
     mass_cholesky: jax.Array
     """(nv, nv) lower-triangular ``L`` with ``A = L L'``."""
+    mass_cholesky_inverse: jax.Array
+    """(nv, nv) ``L^-1`` (lower triangular)."""
     task_residuals: tuple
     """Per level, ``e_k - J_k qdd_[task]``: what the level could not achieve (0 if met)."""
 
     @property
     def null_space(self) -> jax.Array:
         """``N_{n|prec(n)}`` (nv, nv), Eq. 13: the motions that leave every task unchanged."""
-        return jax.scipy.linalg.solve_triangular(
-            self.mass_cholesky, self.projector @ self.mass_cholesky.T, lower=True, trans="T"
-        )
+        return self.mass_cholesky_inverse.T @ (self.projector @ self.mass_cholesky.T)
 
     def apply_null_space(self, qdd_free: jax.Array) -> jax.Array:
         """``N qdd_free`` (nv,) without forming ``N``."""
         y = self.projector @ (self.mass_cholesky.T @ qdd_free)
-        return jax.scipy.linalg.solve_triangular(self.mass_cholesky, y, lower=True, trans="T")
+        return self.mass_cholesky_inverse.T @ y
 
     def mass_times_null_space(self) -> jax.Array:
         """``A N = L P L'`` (nv, nv), the null-space columns of Eq. 17."""
@@ -117,6 +117,7 @@ def prioritized_accelerations(
     rtol: float = 1e-8,
     whiten: bool = True,
     inverse: str | Sequence[str] = "truncated",
+    mass_cholesky_inverse: jax.Array | None = None,
 ) -> HierarchyResult:
     """Joint accelerations for tasks in priority order (first = highest), Eq. 9-10.
 
@@ -130,6 +131,9 @@ def prioritized_accelerations(
     ``inverse``: ``"truncated"`` or ``"damped"`` (:data:`INVERSES`), for every level or
     one per level; with ``"damped"`` ``rtol`` is the damping and ``projector`` is only
     approximately idempotent.
+    ``mass_cholesky_inverse``: ``L^-1`` when the caller has it (computed here otherwise).
+    The coordinate changes are products with it: for a 34-dof robot, batched, the
+    triangular solve of the stacked task rows cost more than inverting ``L`` once.
     """
     if len(jacobians) != len(commands) or not jacobians:
         raise ValueError("prioritized_accelerations: need one command per Jacobian, >= 1 task")
@@ -147,10 +151,12 @@ def prioritized_accelerations(
     command_shape = jnp.shape(commands[0])[1:]
     cmds = [jnp.reshape(c, (c.shape[0], -1)).astype(dtype) for c in commands]  # (m_k, r)
     r = cmds[0].shape[1]
-    # Jt = J L^-T for every level at once: one triangular solve.
-    stacked = jax.scipy.linalg.solve_triangular(
-        chol, jnp.concatenate(jacobians, axis=0).T, lower=True
-    ).T
+    chol_inv = (
+        jax.scipy.linalg.solve_triangular(chol, jnp.eye(nv, dtype=dtype), lower=True)
+        if mass_cholesky_inverse is None
+        else mass_cholesky_inverse
+    )
+    stacked = jnp.concatenate(jacobians, axis=0) @ chol_inv.T  # Jt = J L^-T, every level
     levels = [(stacked[o : o + m], c) for o, m, c in zip(offsets, sizes, cmds, strict=True)]
     if whiten:
         # Levels of equal size are whitened together: one batched factorisation each.
@@ -188,7 +194,7 @@ def prioritized_accelerations(
         else:
             state = state + step
     y, projector = state[:, :r], state[:, r:]
-    qdd = jax.scipy.linalg.solve_triangular(chol, y, lower=True, trans="T")
+    qdd = chol_inv.T @ y
     # Every level's residual from one product (one operation instead of one per level).
     stacked_residual = jnp.concatenate(cmds, axis=0) - jnp.concatenate(jacobians, axis=0) @ qdd
     residuals = tuple(
@@ -196,4 +202,4 @@ def prioritized_accelerations(
         for o, m in zip(offsets, sizes, strict=True)
     )
     qdd = qdd.reshape((nv, *command_shape))
-    return HierarchyResult(qdd, projector, chol, residuals)
+    return HierarchyResult(qdd, projector, chol, chol_inv, residuals)

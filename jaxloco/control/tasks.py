@@ -111,6 +111,8 @@ class RobotSnapshot:
     centroidal_bias: jax.Array
     mass_cholesky: jax.Array
     """(nv, nv) lower-triangular ``L`` with ``L L' = mass_matrix``."""
+    mass_cholesky_inverse: jax.Array
+    """(nv, nv) ``L^-1``: every solve with ``A`` or ``L`` in a tick is a product with it."""
     com: jax.Array
     com_vel: jax.Array
     total_mass: jax.Array
@@ -125,6 +127,8 @@ def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
     # The linear rows of J_cm are the total mass times the CoM Jacobian (gravity's map).
     terms = joint_space_terms(mx, d, smoothed=True, com_jac=jcm[3:] / total)
     chol = jnp.linalg.cholesky(terms.mass_matrix)
+    nv = chol.shape[0]
+    chol_inv = jax.scipy.linalg.solve_triangular(chol, jnp.eye(nv, dtype=chol.dtype), lower=True)
     return RobotSnapshot(
         data=d,
         mass_matrix=terms.mass_matrix,
@@ -132,8 +136,11 @@ def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
         gravity=terms.gravity,
         motion=jac.body_motion(mx, d),
         centroidal_matrix=jcm,
-        centroidal_bias=centroidal.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis, chol),
+        centroidal_bias=centroidal.centroidal_bias(
+            jcm, terms.mass_matrix, terms.coriolis, mass_cholesky_inverse=chol_inv
+        ),
         mass_cholesky=chol,
+        mass_cholesky_inverse=chol_inv,
         com=centroidal.centre_of_mass(mx, d),
         com_vel=jcm[3:] @ qvel / total,
         total_mass=total,

@@ -326,7 +326,13 @@ def wblc_tick(
             )
         )
     hier = prioritized_accelerations(
-        jacs, cmds, snap.mass_cholesky, cfg.pinv_rtol, cfg.whiten_tasks, cfg.hierarchy_inverse
+        jacs,
+        cmds,
+        snap.mass_cholesky,
+        cfg.pinv_rtol,
+        cfg.whiten_tasks,
+        cfg.hierarchy_inverse,
+        snap.mass_cholesky_inverse,
     )
 
     # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft. The angular target is

@@ -84,11 +84,17 @@ def centroidal_inertia(m: mjx.Model, d: mjx.Data) -> jax.Array:
     return jnp.block([[rotational, zeros], [zeros, total * jnp.eye(3, dtype=r.dtype)]])
 
 
-def centroidal_bias(jcm, mass_matrix, coriolis, mass_cholesky=None) -> jax.Array:
+def centroidal_bias(
+    jcm, mass_matrix, coriolis, mass_cholesky=None, mass_cholesky_inverse=None
+) -> jax.Array:
     """Eq. 31: ``Jdot_cm qd = J_cm A^-1 b`` (exact for the momentum; see module doc).
 
     ``A`` is solved by Cholesky (it is symmetric positive definite); ``mass_cholesky``: its
-    lower-triangular factor when the caller has it.
+    lower-triangular factor when the caller has it; ``mass_cholesky_inverse``: that
+    factor's inverse ``L^-1``, when the caller has it (then ``A^-1 b = L^-T L^-1 b`` by
+    products, no solve).
     """
+    if mass_cholesky_inverse is not None:
+        return jcm @ (mass_cholesky_inverse.T @ (mass_cholesky_inverse @ coriolis))
     chol = jnp.linalg.cholesky(mass_matrix) if mass_cholesky is None else mass_cholesky
     return jcm @ jax.scipy.linalg.cho_solve((chol, True), coriolis)
