@@ -46,10 +46,11 @@ test-all: $(STAMP)
 bench: $(STAMP)
 	-$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[bench]"
 	for b in planner learning dynamics wblc closed_loop sweep tuning; do \
-	  $(BIN)/python benchmarks/bench_$$b.py --json bench_results/bench_$$b.json || exit 1; done
+	  $(BIN)/python benchmarks/bench_$$b.py --json benchmarks/results/bench_$$b.json || exit 1; done
+	$(BIN)/python benchmarks/render_results.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check jaxloco experiments tests benchmarks
 
 clean:
-	rm -rf $(VENV) outputs multirun bench_results .pytest_cache
+	rm -rf $(VENV) outputs multirun .pytest_cache

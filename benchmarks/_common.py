@@ -93,8 +93,9 @@ def machine() -> dict:
     }
 
 
-def print_table(title: str, rows: list[dict], columns: list[tuple[str, str, str]]) -> None:
-    """Print rows as a table. ``columns``: (key, header, format spec)."""
+def print_table(title: str, rows: list[dict], columns: list[tuple[str, str, str]]) -> dict:
+    """Print rows as a table. ``columns``: (key, header, format spec). Returns the table as
+    printed (``title``, ``headers``, ``rows`` of cells), for ``write_json``'s ``tables``."""
     cells = [
         [format(r.get(k, ""), f) if r.get(k) is not None else "-" for k, _, f in columns]
         for r in rows
@@ -106,10 +107,61 @@ def print_table(title: str, rows: list[dict], columns: list[tuple[str, str, str]
     print("  ".join("-" * w for w in widths))
     for c in cells:
         print("  ".join(v.ljust(w) for v, w in zip(c, widths, strict=True)))
+    return {"title": title, "headers": headers, "rows": cells}
 
 
-def write_json(path: Path | None, name: str, results: dict) -> None:
-    payload = {"benchmark": name, "machine": machine(), **results}
+def target(name: str, measured: float, limit: float, unit: str, at_most: bool = True) -> dict:
+    """One target of a benchmark: ``measured`` against ``limit`` (``at_most``: the measured
+    value must not exceed it; else it must reach it)."""
+    met = measured <= limit if at_most else measured >= limit
+    return {
+        "name": name,
+        "measured": float(measured),
+        "target": f"{'<=' if at_most else '>='} {limit:g} {unit}",
+        "met": bool(met),
+    }
+
+
+def _commit() -> str:
+    """The repository's commit (``+dirty`` with uncommitted changes), or '' outside git."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(
+            ["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True
+        )
+        dirty = subprocess.run(
+            ["git", "status", "--porcelain", "--untracked-files=no"],
+            cwd=root,
+            capture_output=True,
+            text=True,
+        )
+    except OSError:
+        return ""
+    if head.returncode != 0:
+        return ""
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+
+
+def write_json(
+    path: Path | None,
+    name: str,
+    results: dict,
+    tables: list[dict] | None = None,
+    targets: list[dict] | None = None,
+) -> None:
+    """Write ``results`` with the machine, date, commit, the printed ``tables`` and the
+    ``targets`` (:func:`target`); ``benchmarks/render_results.py`` makes RESULTS.md of it."""
+    payload = {
+        "benchmark": name,
+        "machine": machine(),
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "commit": _commit(),
+        "tables": tables or [],
+        "targets": targets or [],
+        **results,
+    }
     if path is None:
         return
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -40,7 +40,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from _common import compile_seconds, parse_args, print_table, time_calls, write_json  # noqa: E402
+from _common import (  # noqa: E402
+    compile_seconds,
+    parse_args,
+    print_table,
+    target,
+    time_calls,
+    write_json,
+)
 from bench_closed_loop import bench_c_physics, bench_mjx_physics  # noqa: E402
 from mujoco import mjx, rollout  # noqa: E402
 
@@ -196,7 +203,8 @@ def main() -> None:
                 "recovered": r["recovered"],
             }
         )
-    print_table(
+    tables = [None, None]
+    tables[0] = print_table(
         "Push sweeps: the default one (make run) and a small one in 2 chunks; two runs each "
         "with one fresh XLA cache; baseline = physics alone in the same run",
         table_rows,
@@ -220,12 +228,31 @@ def main() -> None:
         {"part": "mjx.step, jit(vmap(scan))", "env_steps_per_s": mjx_rate},
         {"part": "controller tick alone, jit(vmap)", "env_steps_per_s": controller_rate},
     ]
-    print_table(
+    tables[1] = print_table(
         f"Where the time goes (batch {n}; compile: controller {tick_compile:.1f} s, "
         f"mjx.step {mjx_compile:.1f} s)",
         profile,
         [("part", "part", "s"), ("env_steps_per_s", "env-steps/s", ".0f")],
     )
+    targets = []
+    for r in table_rows:
+        if r["backend"] == "c, 2 workers, default sweep":
+            targets = [
+                target("default sweep, env-steps/s", r["env_steps_per_s"], 1e4, "", False),
+                target(
+                    "default sweep, closed loop / physics time",
+                    r["closed_loop_over_physics"],
+                    10.0,
+                    "x",
+                ),
+                target(
+                    "default sweep, pushes recovered",
+                    r["recovered"],
+                    60,
+                    f"of {r['pushes']}",
+                    False,
+                ),
+            ]
     write_json(
         args.json,
         "sweep",
@@ -236,8 +263,9 @@ def main() -> None:
             "controller_compile_s": tick_compile,
             "mjx_physics_compile_s": mjx_compile,
             "quick": args.quick,
-            "targets": {"closed_loop_over_physics": 10.0, "env_steps_per_s": 1e4},
         },
+        tables=tables,
+        targets=targets,
     )
 
 

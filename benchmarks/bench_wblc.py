@@ -31,7 +31,14 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from _common import compile_seconds, parse_args, print_table, time_calls, write_json  # noqa: E402
+from _common import (  # noqa: E402
+    compile_seconds,
+    parse_args,
+    print_table,
+    target,
+    time_calls,
+    write_json,
+)
 
 from jaxloco.control import force_qp, hierarchy  # noqa: E402
 from jaxloco.control import wblc as wblc_module  # noqa: E402
@@ -321,7 +328,8 @@ def main():
         r["vs_single_tick"] = r["per_tick_us"] / base
     if peer is not None:
         rows[0]["ours_over_peer"] = base / (peer["median_s"] * 1e6)
-    print_table(
+    tables = [None] * 3
+    tables[0] = print_table(
         "WBLC on Valkyrie (walking hierarchy, double support, float32)",
         rows,
         [
@@ -336,7 +344,7 @@ def main():
         print("PlaCo not installed (pip install -e .[bench]): peer row skipped")
     else:
         print(f"ours / PlaCo per tick: {rows[0]['ours_over_peer']:.2f}")
-    print_table(
+    tables[1] = print_table(
         "Batched tick by ablation: stages replaced by stand-ins, cumulatively (float32)",
         ablation,
         [
@@ -345,7 +353,7 @@ def main():
             ("share_of_tick", "share of whole tick", ".2f"),
         ],
     )
-    print_table(
+    tables[2] = print_table(
         "Force QP vs quadprog (float64), by ADMM iterations",
         accuracy,
         [
@@ -357,6 +365,17 @@ def main():
             ("relaxed", "relaxed", "d"),
         ],
     )
+    batch64 = next(r for r in rows if r["case"] == "WBLC tick, vmap batch 64")
+    targets = [target("one jitted call", rows[0]["per_tick_us"], 500.0, "us")]
+    if peer is not None:
+        targets.append(
+            target(
+                "vmap batch 64, per robot-tick, over PlaCo's tick",
+                batch64["per_tick_us"] / (peer["median_s"] * 1e6),
+                1.0,
+                "x",
+            )
+        )
     write_json(
         args.json,
         "bench_wblc",
@@ -367,6 +386,8 @@ def main():
             "qp_accuracy": accuracy,
             "peer": peer,
         },
+        tables=tables,
+        targets=targets,
     )
 
 
