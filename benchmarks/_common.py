@@ -117,7 +117,7 @@ def target(name: str, measured: float, limit: float, unit: str, at_most: bool = 
     return {
         "name": name,
         "measured": float(measured),
-        "target": f"{'<=' if at_most else '>='} {limit:g} {unit}",
+        "target": f"{'<=' if at_most else '>='} {limit:g} {unit}".strip(),
         "met": bool(met),
     }
 

@@ -238,7 +238,9 @@ def main() -> None:
     for r in table_rows:
         if r["backend"] == "c, 2 workers, default sweep":
             targets = [
-                target("default sweep, env-steps/s", r["env_steps_per_s"], 1e4, "", False),
+                target(
+                    "default sweep, env-steps/s", r["env_steps_per_s"], 1e4, "env-steps/s", False
+                ),
                 target(
                     "default sweep, closed loop / physics time",
                     r["closed_loop_over_physics"],

@@ -47,7 +47,7 @@ def render_benchmark(result: dict) -> list[str]:
         lines += _markdown_table(
             ["target", "measured", "required", "met"],
             [
-                [t["name"], t["measured"], t["target"], "yes" if t["met"] else "**no**"]
+                [t["name"], t["measured"], t["target"].strip(), "yes" if t["met"] else "**no**"]
                 for t in targets
             ],
         )
