@@ -21,8 +21,9 @@ $(STAMP): pyproject.toml constraints.txt
 	@touch $(STAMP)
 
 # The main job on embedded defaults: a push-recovery sweep (8 directions x 2 impulses x
-# 2 gait phases, replanning on and off; about 10 min on 2 cores). Outputs and the report
-# land in hydra's run directory under outputs/; running it again there resumes.
+# 2 gait phases, replanning on and off; about 2 min on 2 cores once .venv is installed).
+# Outputs and the report land in hydra's run directory under outputs/; running it again
+# there resumes.
 run: $(STAMP)
 	$(BIN)/jaxloco push-sweep
 
