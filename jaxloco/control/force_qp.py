@@ -24,8 +24,8 @@ equality-constrained QP of the objective plus ``rho/2 |f - z + u|^2``, an affine
 ``z - u`` fixed for the call (``M (z - u) + c``, formed once by Woodbury from the diagonal
 weights and the rank-3 moment term, with the net force as a 3-row equality); the ``z``-step
 is each point's Euclidean projection onto ``C_i``, in closed form (:func:`project_point`).
-So an iteration is one 3n x 3n mat-vec and a few elementwise operations, batches well under
-``vmap``, and differentiates through ``lax.scan``. The returned forces are the projected
+So an iteration is one 3n x 3n mat-vec and a few elementwise operations (:func:`admm`),
+batches well under ``vmap``, and differentiates through ``lax.scan``. The returned forces are the projected
 iterate ``z``: they meet the cone and bounds exactly, and the net force within
 ``linear_residual``. Variables are in units of ``force_scale`` newtons, ordered
 coordinate-major (all ``x``, all ``y``, all ``z``) so that each component is a contiguous
@@ -244,32 +244,42 @@ def affine_step(points, in_contact, com, f_lin, f_ang, params: ForceQPParams):
 
 def admm(matrix, offset, fz_lo, fz_hi, mu, params: ForceQPParams, warm: ForceQPState):
     """``params.iterations`` consensus ADMM steps from ``warm``; returns the new state and
-    the last ``f``-step (all scaled units)."""
+    the last ``f``-step (all scaled units).
+
+    After the first step the iterate is carried as ``t = z + u`` (the point the ``z``-step
+    projects, so ``z = proj(t)`` and ``u = t - z``) and ``w = z - u = 2 proj(t) - t`` (the
+    next ``f``-step's argument): a step is then ``t <- t + alpha (M w + c - z)`` with
+    ``z = (w + t) / 2``, and ``w <- 2 proj(t) - t``, the same iterates as the ``(z, u)``
+    form up to round-off. Per step XLA:CPU runs four kernels (the mat-vec, the update of
+    ``t``, the projection, the loop counter) instead of ~11: the ``(z, u)`` form needs
+    ``z``, ``u`` and ``z - u`` materialised, and a stacked projection is compiled per
+    output element. Batched, a step is bound by how many kernels it dispatches.
+    """
     n = fz_lo.shape[0]
     alpha = params.alpha
     ft_max = params.ft_max / params.force_scale
+    row = jnp.arange(3)[:, None]
 
-    def f_step(z, u):
-        v = jnp.concatenate([zk - uk for zk, uk in zip(z, u, strict=True)])
-        return (matrix @ v + offset).reshape(3, n)
+    def f_step(v):
+        return (matrix @ v.reshape(-1) + offset).reshape(3, n)
 
-    def step(state, _):
-        # Rows kept apart (tuples), not one stacked array: stacked, XLA:CPU fused the
-        # projection into each consumer and computed it several times per element.
-        z, u = state
-        f = f_step(z, u)
-        v = tuple(alpha * f[k] + (1.0 - alpha) * z[k] + u[k] for k in range(3))
-        z_new = project_point(*v, fz_lo, fz_hi, mu, ft_max)
-        return (z_new, tuple(vk - zk for vk, zk in zip(v, z_new, strict=True))), None
+    def project(t):
+        # Selected by row rather than stacked: XLA:CPU compiles a stack of the three
+        # projected rows as scalar code, and the selects as vector code.
+        fx, fy, fz = project_point(t[0], t[1], t[2], fz_lo, fz_hi, mu, ft_max)
+        return jnp.where(row == 0, fx, jnp.where(row == 1, fy, fz))
 
-    # Unrolled by 2: fewer loop-control steps, the same arithmetic (more unrolling was
-    # slower batched inside the tick).
-    (z, u), _ = jax.lax.scan(
-        step, (tuple(warm.z), tuple(warm.u)), None, length=params.iterations, unroll=2
-    )
-    f = f_step(z, u)
-    z, u = jnp.stack(z), jnp.stack(u)
-    return ForceQPState(z, u), f
+    def step(carry, _):
+        t, w = carry
+        t = t + alpha * (f_step(w) - 0.5 * (w + t))
+        return (t, 2.0 * project(t) - t), None
+
+    # The first step from (z, u) as given: a warm start need not satisfy z = proj(z + u).
+    t = alpha * f_step(warm.z - warm.u) + (1.0 - alpha) * warm.z + warm.u
+    (t, _), _ = jax.lax.scan(step, (t, 2.0 * project(t) - t), None, length=params.iterations - 1)
+    z = project(t)
+    u = t - z
+    return ForceQPState(z, u), f_step(z - u)
 
 
 def solve_contact_forces(
