@@ -38,6 +38,38 @@ def parse_args(description: str) -> argparse.Namespace:
     return args
 
 
+def pin_to_one_core() -> int | None:
+    """Run this process (and every thread it starts afterwards, XLA's included) on one core,
+    for per-core figures; call before JAX computes anything. Returns the core, or None
+    where the platform cannot pin."""
+    if not hasattr(os, "sched_setaffinity"):
+        return None
+    core = max(os.sched_getaffinity(0))
+    os.sched_setaffinity(0, {core})
+    return core
+
+
+def interleaved(calls: dict, rounds: int) -> dict:
+    """Time several callables round-robin, one call of each per round, so that a slow spell
+    of the machine falls on all of them alike. ``calls``: name -> (fn, units of work per
+    call). Returns per name the median seconds per unit over rounds, and per pair of names
+    (``"a/b"``) the median over rounds of their per-round ratio."""
+    samples = {name: [] for name in calls}
+    for _ in range(rounds):
+        for name, (fn, units) in calls.items():
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn())
+            samples[name].append((time.perf_counter() - t0) / units)
+    out = {name: statistics.median(s) for name, s in samples.items()}
+    names = list(calls)
+    for i, a in enumerate(names):
+        for b in names[i + 1 :]:
+            out[f"{a}/{b}"] = statistics.median(
+                x / y for x, y in zip(samples[a], samples[b], strict=True)
+            )
+    return out
+
+
 def compile_seconds(jitted, *args) -> tuple[float, object]:
     """Trace + lower + compile time of a jitted function for these arguments."""
     t0 = time.perf_counter()

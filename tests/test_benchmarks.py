@@ -55,3 +55,15 @@ def test_results_render_from_the_json_benchmarks_write(tmp_path, capsys):
 def test_render_without_results_says_so(tmp_path):
     with pytest.raises(SystemExit, match="no bench_"):
         render_results.render(tmp_path)
+
+
+def test_interleaved_calls_each_callable_once_per_round():
+    calls = []
+
+    def make(name):
+        return lambda: calls.append(name)
+
+    out = _common.interleaved({"a": (make("a"), 64), "b": (make("b"), 50)}, rounds=4)
+    assert calls == ["a", "b"] * 4
+    assert set(out) == {"a", "b", "a/b"}
+    assert all(v > 0 for v in out.values())
