@@ -6,7 +6,7 @@ import sys
 
 
 def run_cli(args, tmp_path, timeout=600):
-    """``python -m jaxloco.cli ARGS hydra.run.dir=TMP/run``, sharing the test session's
+    """``python -m jaxloco.cli ARGS hydra.run.dir=TMP/run``, sharing the pytest run's
     compile cache (``JAXLOCO_CACHE_DIR``, set by ``conftest.py``)."""
     env = dict(os.environ)
     return subprocess.run(

@@ -1,8 +1,8 @@
 """Test configuration: float64 everywhere (precision matters in the reference checks),
 ``--runslow`` for the full-size end-to-end runs (CI runs their small versions), and one
-persistent XLA compilation cache per test session, so tests that build the same controller
+persistent XLA compilation cache per pytest run, so tests that build the same controller
 (walking, sweeps, experiments) compile it once. The cache lives in a fresh temporary
-folder: every session compiles from scratch, nothing carries over between runs. Under
+folder: every run compiles from scratch, nothing carries over between runs. Under
 ``pytest -n 2 --dist loadfile`` (``make test``) the controller process makes the folder
 and both workers inherit it through the environment, so a program one worker compiled is
 a cache hit for the other (full suites have run this way, all passing)."""

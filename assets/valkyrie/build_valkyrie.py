@@ -13,8 +13,8 @@ Modelling choices (not in the figures):
   (MJX is fast with few contacts). Floor friction 0.8, no restitution. Spheres, not the
   box itself: MJX's plane-box collider keeps only corners within 1 mm of the deepest one,
   so a sole tilted by 0.2 deg lost a corner on MJX and kept it on MuJoCo C, and the two
-  backends parted after hard pushes (session 19: MJX recovered 2 of 40 pushes of 520 N,
-  C 36). Sphere-plane contacts are the same
+  backends parted after hard pushes (MJX recovered 2 of 40 pushes of 520 N, C 36).
+  Sphere-plane contacts are the same
   on both; flat on the floor, the 4 spheres touch where the box's corners did.
 - Near-zero inertias (the 0.03 kg ankle-pitch link) are set to 1e-5 kg m^2.
 - Each foot carries sites at its centre of pressure and at the 4 contact points used by

@@ -83,7 +83,7 @@ def run_sweep(
 
     ``backend``: ``"c"`` (MuJoCo C batch + vmapped JAX controller) or ``"mjx"``.
     ``config``: the resolved experiment config, recorded in the manifest.
-    ``max_chunks``: stop after this many new chunks (to split a long sweep over sessions).
+    ``max_chunks``: stop after this many new chunks (to split a long sweep into several runs).
     ``physics``: the simulated robot's solver settings and torque limit (default
     :class:`PhysicsParams`).
     ``wblc``: the controller's WBLC configuration (default: the walking preset).
