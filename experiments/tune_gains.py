@@ -76,8 +76,8 @@ TuneSchema = config_schema(TuneConfig)
 class TuneGainsConfig:
     tuned: list[str] = field(default_factory=lambda: ["body_ori.bandwidth"])
     """Gains to tune: ``task.kp``, ``task.kd`` or ``task.bandwidth`` (kp and kd together at
-    the hand-set damping ratio) of the body-shaking config's tasks. Measured (README):
-    tuning body kp and kd freely lowered kd until the task was under-damped."""
+    the hand-set damping ratio) of the body-shaking config's tasks. The bandwidth by default:
+    tuned freely, body kp and kd lowered kd until the task was under-damped."""
     per_row: bool = False
     max_log_scale: float = 3.0
     problem: ProblemSchema = field(
@@ -98,12 +98,12 @@ class TuneGainsConfig:
     iteration 0 is the hand-set gains, so they are kept when nothing beats them. 0: keep the
     lowest training loss instead. Why: the training loss (MJX, one solver iteration, a few
     seconds) keeps falling for stiffer gains that make the feet creep and the robot fall
-    after 3-5 s on MuJoCo C (measured, README)."""
+    after 3-5 s on MuJoCo C (docs/tuning.md)."""
     validation_every: int = 2
     validation_frequencies: list[float] = field(default_factory=lambda: [0.7, 0.8, 1.0, 1.2, 1.5])
     """Empty: the training frequencies. The default spans the training band and beyond:
     the worst case over it, not the mean at the two training frequencies, is what keeps
-    gains that do well at 0.8 and 1.2 Hz but worse at 1 Hz out (measured, README)."""
+    gains that do well at 0.8 and 1.2 Hz but worse at 1 Hz out."""
     heldout_duration: float = 5.0
     heldout_frequencies: list[float] = field(default_factory=lambda: [0.6, 0.9, 1.1, 1.4])
     """Shaking frequencies of the held-out runs; keep them apart from the training and

@@ -18,8 +18,8 @@ minimises that over the named numbers (``gait.replan_gamma``; ``task.kp`` / ``ta
 ``task.bandwidth`` of the walking WBLC).
 
 Which iterate is kept: the training loss looks 0.25 s ahead and its per-push gradients
-describe only its local slope (measured: the gradient lowered gamma at every
-step, which the 2.5 s outcomes favour, while the loss itself rose; README), so every
+describe only its local slope (the gradient lowered gamma at every step, which the 2.5 s
+outcomes favour, while the loss itself rose), so every
 ``validation_every``-th iterate (and the last) runs the push sweep ``validation`` on
 MuJoCo C (full 2.5 s recoveries) and the one that recovers the most pushes is kept (ties:
 the earlier iterate; iterate 0 is the hand-set controller, so it is kept when nothing
@@ -101,7 +101,7 @@ class TunePushConfig:
     tuned: list[str] = field(default_factory=lambda: ["gait.replan_gamma"])
     """``gait.replan_gamma`` and ``task.kp`` / ``task.kd`` / ``task.bandwidth`` of the
     walking WBLC. Default gamma alone: in a scan on the validation pushes
-    (README) gamma 0.3 recovered 16/24 against the hand-set 0.5's 13/24, while the CoM
+    gamma 0.3 recovered 16/24 against the hand-set 0.5's 13/24, while the CoM
     task's bandwidth x0.8 / x1.25 recovered 10 and 12; the loss does not see the later
     falls of the stiffer CoM task."""
     max_log_scale: float = 2.0

@@ -25,9 +25,9 @@ equality-constrained QP of the objective plus ``rho/2 |f - z + u|^2``, an affine
 weights and the rank-3 moment term, with the net force as a 3-row equality); the ``z``-step
 is each point's Euclidean projection onto ``C_i``, in closed form (:func:`project_point`).
 So an iteration is one 3n x 3n mat-vec and a few elementwise operations (:func:`admm`),
-batches well under ``vmap``, and differentiates through ``lax.scan``. The returned forces are the projected
-iterate ``z``: they meet the cone and bounds exactly, and the net force within
-``linear_residual``. Variables are in units of ``force_scale`` newtons, ordered
+batches well under ``vmap``, and differentiates through ``lax.scan``. The returned forces
+are the projected iterate ``z``: they meet the cone and bounds exactly, and the net force
+within ``linear_residual``. Variables are in units of ``force_scale`` newtons, ordered
 coordinate-major (all ``x``, all ``y``, all ``z``) so that each component is a contiguous
 row.
 """
@@ -63,8 +63,8 @@ class ForceQPParams:
     (``presets.CLOSED_LOOP_QP``)."""
     rho: float = 0.04
     """ADMM penalty, relative to the objective's mean diagonal (which the moment term
-    dominates). Measured on 300 cold random problems (float64, 200 iterations): 0.04 gave
-    the most within 1e-3 of quadprog (99.3%), 0.02 93%, 0.1 94%, 1.0 78%."""
+    dominates); the cold default is the value that met quadprog on the most random
+    problems (docs/control.md)."""
     alpha: float = 1.6
     """Over-relaxation of the ``z``-step (1: none; OSQP's default 1.6)."""
     force_scale: float = 100.0

@@ -93,11 +93,8 @@ def wblc_config(hierarchy: str | tuple[str, ...] = "walking", **overrides) -> WB
 # it needs fewer iterations than a cold solve (ForceQPParams' defaults, which meet the
 # accuracy target against quadprog from a cold start), and a smaller penalty suits it: warm,
 # the iterate starts near the solution, and a smaller rho moves it along the active
-# constraints faster. Along a 1 kHz sequence of problems (tests/test_force_qp.py, float64),
-# against 2000 cold iterations: 150 iterations at rho 0.02 are within 1.2e-4 N at the
-# median tick, 0.1 N at 93% of ticks and 2.3 N at the worst (a few ticks after a foot's
-# force bound starts to bind); 200 at rho 0.04 were within 4e-6 N, 0.1 N at 90% and 4.4 N;
-# 100 at 0.04 within 2e-3 N, 0.1 N at 81% and 13 N.
+# constraints faster. tests/test_force_qp.py bounds its error along a 1 kHz sequence of
+# problems (measurements in docs/control.md).
 CLOSED_LOOP_QP = ForceQPParams(iterations=150, rho=0.02)
 
 
@@ -105,9 +102,8 @@ CLOSED_LOOP_QP = ForceQPParams(iterations=150, rho=0.02)
 # first level (the contact constraint) is not projected, so its whitened Gram matrix is the
 # identity on the rows in contact: both inverses give it, to 1e-4. The last (arms) only
 # shapes the null space. Those are the two largest levels (12 and 14 rows), whose
-# eigendecompositions cost ~21 of the ~34 us per robot-tick all levels' took at batch 64.
-# Damped at every level was as fast but fell once on the step-5 criterion sweep (180 deg,
-# phase 0.7), where the truncated middle levels recover all 40.
+# eigendecompositions cost the most; damped at every level lost a push of a criterion
+# sweep that the truncated middle levels recover (docs/control.md).
 WALKING_INVERSES = ("damped",) + ("truncated",) * (len(WALKING) - 2) + ("damped",)
 
 

@@ -84,10 +84,7 @@ class WBLCConfig:
     with less than this fraction left free by the levels above counts as lost; without,
     eigenvalues of ``J A^-1 J'`` below this fraction of the unprojected task's largest
     diagonal entry count as zero. A direction kept with freedom ``s`` amplifies its command
-    by ``1/s``. On the default push sweep (MuJoCo C, 64 pushes), the recovered pushes' median
-    ticks over the torque limits were 317 at 1e-2, 593 at 1e-3 and 784 unwhitened at 1e-8,
-    with 55, 52 and 52 of 64 recovered; H2's body shaking falls at 1e-3 (see
-    ``experiments/body_shaking.py``)."""
+    by ``1/s``, so a looser threshold asks for smaller torques (docs/control.md)."""
     whiten_tasks: bool = True
     """Threshold in whitened task rows (:func:`jaxloco.control.hierarchy.whiten_task`)."""
     hierarchy_inverse: str | tuple[str, ...] = "truncated"

@@ -41,10 +41,10 @@ from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
 DEFAULT_POLICY = "policies/rl_psp"
 SHIPPED_POLICIES = {"default": DEFAULT_POLICY, "refined": "policies/rl_psp_refined"}
 """Policies in ``assets/``. ``default``: Algorithm 1 alone (``jaxloco train-planner
-refine.iterations=0``), survival basin 0.389 on policy-eval's draw; the walking controller
-uses it. ``refined``: the same weights refined through the planner (``jaxloco
-train-planner``), basin 0.503 on that draw, but on the full robot it falls on Fig. 11's
-steering walk after 4 steps, which the default walks through (README)."""
+refine.iterations=0``); the walking controller uses it. ``refined``: the same weights
+refined through the planner (``jaxloco train-planner``): a larger survival basin, but on
+the full robot it falls on Fig. 11's steering walk, which the default walks through
+(docs/learning.md)."""
 FORMAT_VERSION = 1
 
 

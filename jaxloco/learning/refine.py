@@ -25,10 +25,10 @@ the spreads stay as Algorithm 1 left them. Adam (optax), optionally with global-
 clipping; the running average of the weights is what is evaluated, and the best evaluated
 one is kept, as in training.
 
-Why it exists: Algorithm 1 (batched, :data:`~jaxloco.learning.training.FAST`) plateaus near
-a 0.41 basin, and least-squares imitation of a 0.485 search policy by the same RBF reaches
-only ~0.42, while this refinement takes the same network to 0.51 on the training
-evaluator's draw and 0.50 on an independent one (README). It is not in the paper.
+Why it exists: Algorithm 1 (batched, :data:`~jaxloco.learning.training.FAST`) plateaus
+below a 0.5 survival basin, and least-squares imitation of a better search policy by the
+same RBF does little better, while this refinement takes the same network past 0.5
+(docs/learning.md). It is not in the paper.
 """
 
 from __future__ import annotations
@@ -59,12 +59,8 @@ class RefineConfig:
     batch: int = 2048
     """Start states per step (uniform over the box of Eq. 1, fresh each step)."""
     horizon: int = 4
-    """Steps each start state is rolled through the planner. Measured from the shipped
-    Algorithm 1 policy (300 steps; basin on the training evaluator's draw / an independent
-    one of 4096 states): 4 steps 0.513-0.514 / 0.503-0.505 (52-60 ms a step);
-    2 steps 0.513 / 0.500 at half the cost; 8 steps 0.510-0.511 / 0.498-0.501,
-    and one 8-step run collapsed to 0 after 425 steps. From the initial weights 2 steps
-    reach the 50% basin fastest (README, fast route); 1 step does not learn (basin 0)."""
+    """Steps each start state is rolled through the planner (>= 2: one step does not
+    learn). Longer horizons cost more per step and gained nothing (docs/learning.md)."""
     learning_rate: float = 1e-3
     adam_eps: float = 1e-8
     """Adam's denominator floor."""
@@ -81,10 +77,7 @@ class RefineConfig:
     """Log soft safety of a step whose equations have no solution."""
     average: float = 0.9
     """Decay of the running average of the weights that is evaluated and kept (0: the
-    current weights). Averaging smooths the step-to-step noise of the fresh batches:
-    measured over two 300-step runs, the averaged weights' basin on the
-    evaluation draw was between 0.001 below and 0.018 above the current ones' at every
-    evaluation after the first 75 steps, and above at most of them."""
+    current weights). Averaging smooths the step-to-step noise of the fresh batches."""
     seed: int = 0
 
     def __post_init__(self):

@@ -125,8 +125,8 @@ class GaitParams:
     contact constraint, standing on nothing."""
     max_touchdown_delay: float = 0.0
     """The longest a touch-down waits for a late foot (s); then the stance switches anyway.
-    0 (the default): no wait. On the 40-push 520 N criterion sweep (C backend) waiting up to
-    0.1 s recovered 34 against 37 without, so it is an option, not the default."""
+    0 (the default): no wait; waiting recovered fewer pushes on the criterion sweep
+    (docs/locomotion.md)."""
     late_landing_depth: float = 0.03
     """While a touch-down waits, the swing foot's height reference is this far below its
     target (m), so that the foot goes down instead of hovering over it."""
@@ -139,11 +139,10 @@ class GaitParams:
     replan_delay: float = 0.02
     """How long the error must stay above the threshold (s)."""
     replan_gamma: float = 0.5
-    """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state. The paper
-    uses 0.8; on our model the 16 pushes of 520 N x 0.1 s in 8 directions at 2 gait phases
-    (the push sweep) were recovered 12 / 13 / 2 times at 0.5 / 0.2 / 0.8: the paper's
-    value under-reacts to the measured push here. Per robot it is data
-    (``init_gait(replan_gamma=...)``), so it can be traced and tuned by gradient."""
+    """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state, in (0, 1).
+    The paper uses 0.8, which under-reacts to a push on this model (docs/locomotion.md).
+    Per robot it is data (``init_gait(replan_gamma=...)``), so it can be traced and tuned
+    by gradient."""
     max_apex_speed: float = 1.0
     """Cap on the next apex velocity the step policy asks for (m/s): sets the walking speed
     below the policy's own (the shipped policy asks for 0.37, the top of its action box).
@@ -154,14 +153,9 @@ class GaitParams:
     com_height: Optional[float] = 0.985  # noqa: UP045 (OmegaConf needs typing.Optional)
     """Walking CoM height above the stance foot (m): the LIPM height of the gait's CoM
     reference and of the planner at run time (``make_walking_controller`` sets ``psp.h``).
-    None: the height the step policy was trained at (``psp.h``, 1.005294). The authors'
-    runtime planner used the measured CoM height (1.07 at our walking keyframe, knee 0.6
-    rad), but a crouch reaches farther with the swing foot: on the 40-push 520 N criterion sweep
-    (C backend) 0.965 / 0.985 / 1.005 / 1.035 / 1.06 recovered 36 / 40 / 39 / 31 / 20, and
-    over 320 pushes (steps 4 and 5, noisy starts) 0.985 recovered 314 against 308 at 1.005
-    (11 only at 0.985, 5 only at 1.005). Those ran with the authors' force-QP points; with
-    the model's points, steps 4 and 5 gave 80/80 at 0.985, 78/80 at
-    1.005."""
+    None: the height the step policy was trained at (``psp.h``, 1.005294). Lower than the
+    authors' (the measured CoM height, 1.07 at our walking keyframe) because a crouch
+    reaches farther with the swing foot (docs/locomotion.md)."""
     arm_return_rate: float = 2.0
     """Rate (1/s) at which the CAM reference brings the arms back to their posture (see
     ``walking._cam_reference``): the arms serve as momentum actuators, and without it they

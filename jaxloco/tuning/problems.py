@@ -66,9 +66,8 @@ class ShakingLossParams:
     com_weight: float = 10.0
     slip_weight: float = 0.0
     """Weight of the feet's creep (m^2 of contact-point displacement, time-averaged). 0 by
-    default: measured (README), 100 let the gains stiffen and the feet creep more on
-    MuJoCo C, 1000 softened the gains until tracking got worse; none improved every
-    held-out frequency."""
+    default: at 100 the gains stiffened and the feet crept more on MuJoCo C, at 1000 the
+    gains softened until tracking got worse (docs/tuning.md)."""
     fall_weight: float = 10.0
     fall_height: float = 0.7
 
@@ -220,10 +219,7 @@ class PushLossParams:
     horizon: float = 0.25
     """Simulated seconds from the push's start; keep it before the step's touch-down, after
     which the pre-push plan is no reference. Gradients are trustworthy up to the
-    touch-down, not across it (measured with an earlier version of this loss, float64,
-    520 N forward push at phase 0.3: forward-mode derivatives matched central differences
-    at 0.1 s and within 10% at 0.25 s; over 0.5 s, which crosses the touch-down and a new
-    plan, they were 1e5 times the differences; README)."""
+    touch-down, not across it (docs/tuning.md)."""
     dcm_reference: str = "footstep"
     """``"footstep"`` or ``"plan"`` (see above)."""
     push_step: int = 4
