@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import contextlib
 import faulthandler
+import importlib.util
 import json
 import logging
 import os
@@ -20,9 +21,19 @@ DEFAULT_CACHE_DIR = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"
 
 
 def assets_dir() -> Path:
-    """The repository's ``assets/`` folder (or ``$JAXLOCO_ASSETS_DIR``)."""
+    """The folder of the models, shipped policies and gains: ``$JAXLOCO_ASSETS_DIR`` if set,
+    else the installed package ``jaxloco.assets`` (the repository's ``assets/``, installed
+    as package data), else ``assets/`` next to the package (a source tree not installed)."""
     env = os.environ.get("JAXLOCO_ASSETS_DIR")
-    return Path(env) if env else Path(__file__).resolve().parents[1] / "assets"
+    if env:
+        return Path(env)
+    try:
+        spec = importlib.util.find_spec("jaxloco.assets")
+    except ImportError:
+        spec = None
+    if spec is not None and spec.submodule_search_locations:
+        return Path(next(iter(spec.submodule_search_locations)))
+    return Path(__file__).resolve().parents[1] / "assets"
 
 
 SMALL_LOOP_BYTES = 16_000

@@ -1,0 +1,80 @@
+"""The package as installed: every subpackage listed in pyproject.toml, and a wheel that
+carries the assets, so a non-editable install loads the model and the shipped policy."""
+
+import os
+import subprocess
+import sys
+import tomllib
+import zipfile
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def test_every_subpackage_is_listed():
+    listed = set(
+        tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]
+    )
+    found = {
+        ".".join(p.parent.relative_to(ROOT).parts)
+        for p in (ROOT / "jaxloco").rglob("__init__.py")
+        if "__pycache__" not in p.parts
+    }
+    assert found | {"jaxloco.assets"} == listed
+
+
+def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
+    subprocess.run(
+        [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", str(tmp_path), "."],
+        cwd=ROOT,
+        check=True,
+        timeout=600,
+    )
+    (wheel,) = tmp_path.glob("jaxloco-*.whl")
+    names = set(zipfile.ZipFile(wheel).namelist())
+    for asset in (
+        "jaxloco/assets/valkyrie/valkyrie.xml",
+        "jaxloco/assets/planar3dof.xml",
+        "jaxloco/assets/policies/rl_psp/weights.npz",
+        "jaxloco/assets/policies/rl_psp_refined/config.json",
+        "jaxloco/assets/gains/body_shaking_h1_bandwidth.json",
+    ):
+        assert asset in names
+    target = tmp_path / "site"
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pip",
+            "install",
+            "--quiet",
+            "--no-deps",
+            "--target",
+            str(target),
+            str(wheel),
+        ],
+        check=True,
+        timeout=600,
+    )
+    code = (
+        "from jaxloco.runtime import assets_dir\n"
+        "from jaxloco.dynamics.model import load_valkyrie\n"
+        "from jaxloco.learning import load_planner\n"
+        "load_planner()\n"
+        "print('RESULT', assets_dir(), load_valkyrie().nv)\n"
+    )
+    env = {k: v for k, v in os.environ.items() if k != "JAXLOCO_ASSETS_DIR"}
+    env["PYTHONPATH"] = str(target)
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stderr[-2000:]
+    (line,) = [x for x in out.stdout.splitlines() if x.startswith("RESULT ")]
+    _, assets, nv = line.split()
+    assert Path(assets).resolve() == (target / "jaxloco" / "assets").resolve()
+    assert nv == "34"
