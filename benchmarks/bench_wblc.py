@@ -115,7 +115,9 @@ def _hierarchy_stand_in(jacs, cmds, mass_cholesky, rtol, whiten, inverse, choles
 def _torque_stand_in(ctrl, a_null, tau_task, rtol):
     dofs = jnp.asarray(ctrl.actuated_dofs)
     base = jnp.asarray(ctrl.unactuated_dofs)
-    return tau_task[dofs] + a_null[0, 0], jnp.zeros_like(tau_task), tau_task[base]
+    return wblc_module.TorqueSolution(
+        tau_task[dofs] + a_null[0, 0], jnp.zeros_like(tau_task), tau_task[base]
+    )
 
 
 def ablation_rows(ctrl, refs, q, batch: int, repeats: int) -> list[dict]:

@@ -304,6 +304,32 @@ def test_one_tick_is_consistent(valkyrie):
     np.testing.assert_array_equal(dg.torque_over_limit, np.abs(out.torques) > limits)
 
 
+def test_the_tick_is_its_four_stages(valkyrie):
+    """The stages called one by one (as a user replacing one of them would) give the
+    tick's torques; stage 1 switches contact rows by the contact set, not the reference."""
+    from jaxloco.control import wblc as w
+
+    model, data, ctrl, refs, _ = valkyrie
+    q = jnp.asarray(data.qpos)
+    v = jnp.asarray(np.random.default_rng(3).normal(0, 0.1, model.nv))
+    contact = jnp.asarray([1.0, 0.0])
+    gains, prev = ctrl.default_gains(), ctrl.initial_qp_state(jnp.float64)
+
+    def by_stages(q, v):
+        snap = ctrl.snapshot(q, v)
+        terms = w.task_stage(ctrl, snap, refs, contact, gains)
+        hier = w.hierarchy_stage(ctrl, snap, terms, refs[ctrl.config.cam_task].weight)
+        forces = w.force_stage(ctrl, snap, terms, hier, contact, prev)
+        qdd_task = hier.qdd @ forces.cam_shift
+        return w.torque_stage(ctrl, snap, hier, qdd_task, forces.solution.forces), terms
+
+    staged, terms = jax.jit(by_stages)(q, v)
+    whole = jax.jit(lambda q, v: ctrl(q, v, refs, contact, gains, prev))(q, v)
+    np.testing.assert_allclose(staged.torques, whole.torques, rtol=1e-10, atol=1e-10)
+    right = next(t for t in ctrl.config.tasks if t.name == "right_contact")
+    assert float(jnp.abs(terms[right.name].jacobian).max()) == 0.0
+
+
 @pytest.mark.parametrize("rank", [4, 20])
 def test_torque_solution_is_the_minimum_norm_least_squares_one(valkyrie, rank):
     """Eq. 19 by a Cholesky and a base-rows pseudo-inverse against the pseudo-inverse of
@@ -319,9 +345,8 @@ def test_torque_solution_is_the_minimum_norm_least_squares_one(valkyrie, rank):
     chol = np.linalg.cholesky(mass)
     a_null = chol @ (basis @ basis.T) @ chol.T
     tau_task = rng.normal(scale=50.0, size=nv)
-    torques, qdd_res, base_residual = torque_solution(
-        ctrl, jnp.asarray(a_null), jnp.asarray(tau_task), 1e-8
-    )
+    sol = torque_solution(ctrl, jnp.asarray(a_null), jnp.asarray(tau_task), 1e-8)
+    torques, qdd_res, base_residual = sol.torques, sol.qdd_res, sol.base_residual
     system = np.concatenate([np.asarray(ctrl.selection).T, -a_null], axis=1)
     solution = np.linalg.pinv(system, rcond=1e-10) @ tau_task
     nu = model.nu
@@ -351,9 +376,10 @@ def test_torque_solution_float32_leaves_an_unreachable_base_direction_alone(valk
     tau_task = rng.normal(scale=50.0, size=nv)
     system = np.concatenate([np.asarray(ctrl.selection, np.float64).T, -a_null], axis=1)
     expected = np.linalg.pinv(system, rcond=1e-4) @ tau_task
-    torques, _, base_residual = torque_solution(
+    sol = torque_solution(
         ctrl, jnp.asarray(a_null, jnp.float32), jnp.asarray(tau_task, jnp.float32), 1e-8
     )
+    torques, base_residual = sol.torques, sol.base_residual
     np.testing.assert_allclose(torques, expected[: model.nu], atol=0.05 * np.abs(tau_task).max())
     assert abs(float(base_residual[-1]) + tau_task[base[-1]]) < 1e-3 * abs(tau_task[base[-1]])
 

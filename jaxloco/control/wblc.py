@@ -1,17 +1,21 @@
 """The whole-body locomotion controller, WBLC (paper Section III, Fig. 7).
 
-One tick, for a state ``(qpos, qvel)``, task references, a contact set and the previous
-tick's QP solution:
+One tick (:func:`wblc_tick`), for a state ``(qpos, qvel)``, task references, a contact set
+and the previous tick's QP solution, on one :class:`~jaxloco.control.tasks.RobotSnapshot`
+(mass matrix, its Cholesky factor and inverse, bias forces, centroidal terms), in four
+stages:
 
-1. every task's Jacobian, ``Jdot qd`` and desired acceleration (:mod:`.tasks`);
-2. the hierarchy of Eq. 9-10 (:mod:`.hierarchy`) over the levels of ``config.hierarchy``,
-   with the CAM command left as a free term (the map is linear in it);
-3. the reaction-force QP of Eq. 14 (:mod:`.force_qp`): the CoM task's acceleration as the
-   hard linear part ``m (xdd_com^d + g)``, the CAM rate the hierarchy's motion implies as
-   the soft angular part (the CAM task's PD command wherever the CAM is free in the
-   hierarchy); the rate the forces achieve sets the CAM task's command (Eq. 15);
-4. torques by Eq. 16-19: ``[U', -A N] [tau; qdd_res] = A qdd_task + b + g - J_r' F_r``,
-   its minimum-norm least-squares solution (:func:`torque_solution`).
+1. :func:`task_stage`: every task's Jacobian, ``Jdot qd`` and desired acceleration
+   (:mod:`.tasks`);
+2. :func:`hierarchy_stage`: the hierarchy of Eq. 9-10 (:mod:`.hierarchy`) over the levels
+   of ``config.hierarchy``, with the CAM command left as a free term (the map is linear in
+   it);
+3. :func:`force_stage`: the reaction-force QP of Eq. 14 (:mod:`.force_qp`): the CoM task's
+   acceleration as the hard linear part ``m (xdd_com^d + g)``, the CAM rate the hierarchy's
+   motion implies as the soft angular part (the CAM task's PD command wherever the CAM is
+   free in the hierarchy); the rate the forces achieve sets the CAM task's command (Eq. 15);
+4. :func:`torque_stage`: torques by Eq. 16-19, ``[U', -A N] [tau; qdd_res] = A qdd_task +
+   b + g - J_r' F_r``, its minimum-norm least-squares solution (:func:`torque_solution`).
 
 Sign convention: ``F_r`` is the force of the ground *on the robot* (MuJoCo's), so Eq. 11
 reads ``A qdd + b + g - J_r' F_r = U' tau``.
@@ -35,7 +39,7 @@ from flax import struct
 from mujoco import mjx
 
 from jaxloco.control import force_qp
-from jaxloco.control.hierarchy import INVERSES, prioritized_accelerations
+from jaxloco.control.hierarchy import INVERSES, HierarchyResult, prioritized_accelerations
 from jaxloco.control.pinv import pinv_psd
 from jaxloco.control.segments import Segments
 from jaxloco.control.tasks import (
@@ -266,20 +270,79 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
     )
 
 
+@struct.dataclass
+class ForceStage:
+    """What the force QP gives the rest of the tick (stage 3)."""
+
+    solution: force_qp.ForceQPSolution
+    cam_shift: jax.Array
+    """(4,) ``[1, W_ang F_r - cam_rate]``: the weights of the hierarchy's command columns
+    (the tasks' commands, then unit CAM commands) that give Eq. 15's CAM command."""
+
+
+@struct.dataclass
+class TorqueSolution:
+    """Eq. 19's solution (stage 4)."""
+
+    torques: jax.Array
+    """(nu,) actuator torques (N m, actuator order)."""
+    qdd_res: jax.Array
+    """(nv,) the null-space acceleration ``qdd_res`` of Eq. 12."""
+    base_residual: jax.Array
+    """(number of unactuated dofs,) floating-base rows left unmet (0 when met)."""
+
+
 def wblc_tick(
     ctrl: WBLC, qpos, qvel, refs: dict, contact, gains=None, previous=None, snap=None
 ) -> WBLCOutput:
-    """One WBLC tick (see the module doc). ``contact``: (feet,) weights in [0, 1]; a foot
-    is in contact when > 0 and its normal-force bound ramps with the weight (blending).
-    ``snap``: the state's :class:`RobotSnapshot` when the caller already has it."""
-    cfg, mx = ctrl.config, ctrl.mx
+    """One WBLC tick (see the module doc): :func:`task_stage`, :func:`hierarchy_stage`,
+    :func:`force_stage` and :func:`torque_stage` on one :class:`RobotSnapshot`.
+
+    ``contact``: (feet,) weights in [0, 1]; a foot is in contact when > 0 and its
+    normal-force bound ramps with the weight (blending). ``snap``: the state's
+    :class:`RobotSnapshot` when the caller already has it."""
     gains = ctrl.default_gains() if gains is None else gains
     snap = ctrl.snapshot(qpos, qvel) if snap is None else snap
-    d = snap.data
-    dtype = d.qvel.dtype
+    dtype = snap.data.qvel.dtype
     contact = jnp.clip(jnp.asarray(contact, dtype), 0.0, 1.0)
-    foot_frames = [f.frame for f in cfg.feet]
+    previous = ctrl.initial_qp_state(dtype) if previous is None else previous
 
+    terms = task_stage(ctrl, snap, refs, contact, gains)
+    hier = hierarchy_stage(ctrl, snap, terms, refs[ctrl.config.cam_task].weight)
+    forces = force_stage(ctrl, snap, terms, hier, contact, previous)
+    qdd_task = hier.qdd @ forces.cam_shift
+    torques = torque_stage(ctrl, snap, hier, qdd_task, forces.solution.forces)
+
+    cfg, sol = ctrl.config, forces.solution
+    cam = terms[cfg.cam_task]
+    terms[cfg.cam_task] = cam.replace(desired=cam.desired + forces.cam_shift[1:])
+    diagnostics = WBLCDiagnostics(
+        qdd_desired=qdd_task + hier.apply_null_space(torques.qdd_res),
+        contact_forces=sol.forces,
+        cam_rate_achieved=sol.angular,
+        qp_relaxed=sol.relaxed,
+        qp_infeasible=sol.infeasible,
+        qp_linear_residual=sol.linear_residual,
+        qp_primal_residual=sol.primal_residual,
+        base_residual=torques.base_residual,
+        torque_over_limit=jnp.abs(torques.torques) > ctrl.torque_limits,
+        task_errors=Segments.stack({n: t.error for n, t in terms.items()}),
+        level_residuals=Segments(
+            jnp.concatenate(hier.task_residuals, axis=0) @ forces.cam_shift,
+            tuple(cfg.hierarchy),
+            tuple(r.shape[0] for r in hier.task_residuals),
+        ),
+    )
+    return WBLCOutput(torques.torques, diagnostics, sol.warm_start)
+
+
+def task_stage(ctrl: WBLC, snap: RobotSnapshot, refs: dict, contact, gains: dict) -> dict:
+    """Stage 1: the terms (Jacobian, ``Jdot qd``, desired acceleration) of every task the
+    hierarchy or the force QP uses, by task name. A contact task's rows follow the contact
+    set, not its reference; the CoM command's horizontal part is bounded by
+    ``com_acc_limit``."""
+    cfg, dtype = ctrl.config, snap.data.qvel.dtype
+    foot_frames = [f.frame for f in cfg.feet]
     used = {name for level in cfg.hierarchy for name in level.split("+")}
     used |= {cfg.com_task, cfg.cam_task}
     terms = {}
@@ -289,19 +352,24 @@ def wblc_tick(
         ref = refs[t.name]
         if t.kind == "contact":  # the contact set decides, not the reference
             ref = ref.replace(weight=(contact[foot_frames.index(t.frame)] > 0).astype(dtype))
-        terms[t.name] = task_terms(mx, t, ctrl.indices[t.name], snap, ref, gains[t.name])
-
+        terms[t.name] = task_terms(ctrl.mx, t, ctrl.indices[t.name], snap, ref, gains[t.name])
     if cfg.com_acc_limit < float("inf"):
         com = terms[cfg.com_task]
         horizontal = com.desired[:2]
         norm = jnp.linalg.norm(horizontal)
         scale = jnp.minimum(1.0, cfg.com_acc_limit / jnp.maximum(norm, 1e-9))
         terms[cfg.com_task] = com.replace(desired=com.desired.at[:2].set(horizontal * scale))
+    return terms
 
-    # The hierarchy (Eq. 9-10) is linear in the commands: solve it for the tasks' commands
-    # (column 0) and for unit changes of the CAM command (columns 1-3), so the CAM command
-    # can be set after the force QP without a second pass.
-    cam_name = cfg.cam_task
+
+def hierarchy_stage(ctrl: WBLC, snap: RobotSnapshot, terms: dict, cam_weight) -> HierarchyResult:
+    """Stage 2: the hierarchy (Eq. 9-10) over ``config.hierarchy``'s levels.
+
+    It is linear in the commands: it is solved for the tasks' commands (column 0) and for
+    unit changes of the CAM command (columns 1-3, scaled by the CAM reference's
+    ``cam_weight``), so the CAM command can be set after the force QP without a second
+    pass."""
+    cfg, dtype = ctrl.config, snap.data.qvel.dtype
     jacs, cmds = [], []
     for level in cfg.hierarchy:
         names = level.split("+")
@@ -312,8 +380,8 @@ def wblc_tick(
                     jnp.concatenate(
                         [
                             (terms[n].desired - terms[n].jdot_qdot)[:, None],
-                            refs[cam_name].weight * jnp.eye(3, dtype=dtype)
-                            if n == cam_name
+                            cam_weight * jnp.eye(3, dtype=dtype)
+                            if n == cfg.cam_task
                             else jnp.zeros((terms[n].desired.shape[0], 3), dtype),
                         ],
                         axis=1,
@@ -322,7 +390,7 @@ def wblc_tick(
                 ]
             )
         )
-    hier = prioritized_accelerations(
+    return prioritized_accelerations(
         jacs,
         cmds,
         snap.mass_cholesky,
@@ -332,64 +400,53 @@ def wblc_tick(
         snap.mass_cholesky_inverse,
     )
 
-    # Reaction forces (Eq. 14): linear CoM behaviour hard, CAM soft. The angular target is
-    # the CAM rate the hierarchy's motion implies. Where the CAM task is free in the
-    # hierarchy (H1, walking), that is its PD command, the paper's choice; where tasks above
-    # it fix the CAM (H2's body and partial posture take every free dof), it is the rate
-    # those tasks need, and forces aiming elsewhere would leave the floating-base rows of
-    # Eq. 17 unmet.
+
+def force_stage(
+    ctrl: WBLC, snap: RobotSnapshot, terms: dict, hier: HierarchyResult, contact, previous
+) -> ForceStage:
+    """Stage 3: the reaction forces (Eq. 14), the linear CoM behaviour hard and the CAM
+    soft, warm-started from ``previous``.
+
+    The angular target is the CAM rate the hierarchy's motion implies. Where the CAM task
+    is free in the hierarchy (H1, walking), that is its PD command, the paper's choice;
+    where tasks above it fix the CAM (H2's body and partial posture take every free dof), it
+    is the rate those tasks need, and forces aiming elsewhere would leave the floating-base
+    rows of Eq. 17 unmet. Eq. 15: the CAM task then follows what the forces can do;
+    shifting its command by the shortfall gives the paper's command (the achieved rate)
+    where the CAM is free."""
+    cfg, d, dtype = ctrl.config, snap.data, snap.data.qvel.dtype
     cam_rate = snap.centroidal_matrix[:3] @ hier.qdd[:, 0] + snap.centroidal_bias[:3]
     qp = cfg.force_qp
-    gravity = -mx.opt.gravity
-    f_lin = snap.total_mass * (terms[cfg.com_task].desired + gravity)
+    f_lin = snap.total_mass * (terms[cfg.com_task].desired - ctrl.mx.opt.gravity)
     points = d.site_xpos[jnp.asarray(ctrl.point_sites)]
     weight = contact[jnp.asarray(ctrl.foot_of_point)]
     fz_max = qp.fz_min + weight * (qp.fz_max - qp.fz_min)
-    previous = ctrl.initial_qp_state(dtype) if previous is None else previous
     sol = force_qp.solve_contact_forces(
         points, weight > 0, snap.com, f_lin, cam_rate, qp, fz_max=fz_max, warm_start=previous
     )
-    # Eq. 15: the CAM task follows what the forces can do. Shifting its command by the
-    # shortfall gives the paper's command (the achieved rate) where the CAM is free.
     shift = jnp.concatenate([jnp.ones(1, dtype), sol.angular - cam_rate])
-    qdd_task = hier.qdd @ shift
-    level_residuals = Segments(
-        jnp.concatenate(hier.task_residuals, axis=0) @ shift,
-        tuple(cfg.hierarchy),
-        tuple(r.shape[0] for r in hier.task_residuals),
-    )
-    terms[cam_name] = terms[cam_name].replace(desired=terms[cam_name].desired + shift[1:])
+    return ForceStage(sol, shift)
 
-    # Torques, Eq. 16-19.
+
+def torque_stage(
+    ctrl: WBLC, snap: RobotSnapshot, hier: HierarchyResult, qdd_task, forces
+) -> TorqueSolution:
+    """Stage 4: torques by Eq. 16-19 for the task accelerations ``qdd_task`` and the
+    (points, 3) reaction forces ``forces``."""
     tau_task = (
         snap.mass_matrix @ qdd_task
         + snap.coriolis
         + snap.gravity
-        - contact_generalized_force(ctrl, d, sol.forces)
+        - contact_generalized_force(ctrl, snap.data, forces)
     )
-    torques, qdd_res, base_residual = torque_solution(
-        ctrl, hier.mass_times_null_space(), tau_task, cfg.torque_pinv_rtol
+    return torque_solution(
+        ctrl, hier.mass_times_null_space(), tau_task, ctrl.config.torque_pinv_rtol
     )
 
-    diagnostics = WBLCDiagnostics(
-        qdd_desired=qdd_task + hier.apply_null_space(qdd_res),
-        contact_forces=sol.forces,
-        cam_rate_achieved=sol.angular,
-        qp_relaxed=sol.relaxed,
-        qp_infeasible=sol.infeasible,
-        qp_linear_residual=sol.linear_residual,
-        qp_primal_residual=sol.primal_residual,
-        base_residual=base_residual,
-        torque_over_limit=jnp.abs(torques) > ctrl.torque_limits,
-        task_errors=Segments.stack({n: t.error for n, t in terms.items()}),
-        level_residuals=level_residuals,
-    )
-    return WBLCOutput(torques, diagnostics, sol.warm_start)
 
-
-def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float):
+def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float) -> TorqueSolution:
     """Eq. 19: the minimum-norm least-squares ``[tau; qdd_res]`` of
-    ``[U', -A N] [tau; qdd_res] = tau_task``, as ``(torques, qdd_res, base_residual)``.
+    ``[U', -A N] [tau; qdd_res] = tau_task``.
 
     Every actuated dof's row can be met by its own actuator, so only the unactuated rows
     (the floating base) can be left unmet, and the problem is a least-norm one in
@@ -431,7 +488,7 @@ def torque_solution(ctrl: WBLC, a_null, tau_task, rtol: float):
         qdd_res = jax.scipy.linalg.cho_solve(factor, gradient)
         base_residual = jnp.zeros((0,), a_null.dtype)
     torques = offset + coupling @ qdd_res
-    return torques, qdd_res, base_residual
+    return TorqueSolution(torques, qdd_res, base_residual)
 
 
 def contact_generalized_force(ctrl: WBLC, d, forces):
