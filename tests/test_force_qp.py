@@ -261,7 +261,7 @@ def test_impossible_net_force_is_flagged_with_finite_forces():
 
 
 def test_params_validation():
-    with pytest.raises(ValueError, match="need 0 < mu < mu_relaxed"):
+    with pytest.raises(ValueError, match=r"ForceQPParams\.mu must be in \(0, mu_relaxed"):
         ForceQPParams(mu=2.0)
     with pytest.raises(ValueError, match="alpha"):
         ForceQPParams(alpha=2.0)

@@ -40,6 +40,8 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxloco import validation as v
+
 
 @dataclasses.dataclass(frozen=True)
 class ForceQPParams:
@@ -71,31 +73,25 @@ class ForceQPParams:
     """Forces are solved in units of this many newtons (conditioning)."""
 
     def __post_init__(self):
-        if not 0 < self.mu < self.mu_relaxed:
-            raise ValueError(
-                f"ForceQPParams: need 0 < mu < mu_relaxed; got {self.mu}, {self.mu_relaxed}"
-            )
-        if not 0 <= self.fz_min < self.fz_max:
-            raise ValueError(
-                f"ForceQPParams: need 0 <= fz_min < fz_max; got {self.fz_min}, {self.fz_max}"
-            )
-        if not self.mu_relaxed * self.fz_min <= self.ft_max:
-            raise ValueError(
-                "ForceQPParams: need mu_relaxed * fz_min <= ft_max (the least normal force "
-                f"must allow its own friction); got {self.mu_relaxed} * {self.fz_min} > "
-                f"{self.ft_max}"
-            )
-        if self.iterations < 1:
-            raise ValueError(f"ForceQPParams.iterations must be >= 1; got {self.iterations}")
-        if not self.rho > 0:
-            raise ValueError(f"ForceQPParams.rho must be > 0; got {self.rho}")
-        if not 0 < self.alpha < 2:
-            raise ValueError(f"ForceQPParams.alpha must be in (0, 2); got {self.alpha}")
-        if not self.force_scale > 0:
-            raise ValueError(f"ForceQPParams.force_scale must be > 0; got {self.force_scale}")
-        for name in ("weight_tangential", "weight_normal", "weight_angular"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"ForceQPParams.{name} must be > 0; got {getattr(self, name)}")
+        v.check_fields(
+            self,
+            [
+                ("mu", 0 < self.mu < self.mu_relaxed, f"in (0, mu_relaxed = {self.mu_relaxed})"),
+                ("fz_min", 0 <= self.fz_min < self.fz_max, f"in [0, fz_max = {self.fz_max})"),
+                (
+                    "ft_max",
+                    self.mu_relaxed * self.fz_min <= self.ft_max,
+                    f">= mu_relaxed * fz_min = {self.mu_relaxed * self.fz_min} (the least "
+                    "normal force must allow its own friction)",
+                ),
+                v.integer(self, "iterations", 1),
+                *v.positive(self, "rho"),
+                ("alpha", 0 < self.alpha < 2, "in (0, 2)"),
+                *v.positive(
+                    self, "force_scale", "weight_tangential", "weight_normal", "weight_angular"
+                ),
+            ],
+        )
 
 
 @struct.dataclass

@@ -17,6 +17,8 @@ import jax
 import jax.numpy as jnp
 from brax import math as quat_math
 
+from jaxloco import validation as v
+
 
 @dataclasses.dataclass(frozen=True)
 class ShakingParams:
@@ -29,15 +31,17 @@ class ShakingParams:
     """Seconds over which the amplitude ramps up from zero (0: no ramp)."""
 
     def __post_init__(self):
-        for name in ("roll_amplitude", "pitch_amplitude", "yaw_amplitude"):
-            if not 0 <= getattr(self, name) <= 1.0:
-                raise ValueError(f"ShakingParams.{name} must be in [0, 1] rad")
-        if not 0 < self.frequency_hz <= 10:
-            raise ValueError(
-                f"ShakingParams.frequency_hz must be in (0, 10]; got {self.frequency_hz}"
-            )
-        if self.ramp < 0:
-            raise ValueError(f"ShakingParams.ramp must be >= 0 s; got {self.ramp}")
+        v.check_fields(
+            self,
+            [
+                *(
+                    (n, 0 <= getattr(self, n) <= 1.0, "in [0, 1] rad")
+                    for n in ("roll_amplitude", "pitch_amplitude", "yaw_amplitude")
+                ),
+                ("frequency_hz", 0 < self.frequency_hz <= 10, "in (0, 10] Hz"),
+                ("ramp", self.ramp >= 0, ">= 0 s"),
+            ],
+        )
 
 
 def shaking_reference(params: ShakingParams, q0, t, frequency_hz=None):

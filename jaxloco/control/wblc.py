@@ -38,6 +38,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
+from jaxloco import validation as v
 from jaxloco.control import force_qp
 from jaxloco.control.hierarchy import INVERSES, HierarchyResult, prioritized_accelerations
 from jaxloco.control.pinv import pinv_psd
@@ -113,10 +114,16 @@ class WBLCConfig:
                         f"WBLCConfig.hierarchy: unknown task {name!r} in level {level!r}; "
                         f"tasks are {names}"
                     )
-        if not self.com_acc_limit > 0:
-            raise ValueError(
-                f"WBLCConfig.com_acc_limit must be > 0 (inf: off); got {self.com_acc_limit}"
-            )
+        v.check_fields(
+            self,
+            [
+                ("com_acc_limit", self.com_acc_limit > 0, "> 0 (inf: off)"),
+                *(
+                    (f, 0 < getattr(self, f) < 1, "in (0, 1)")
+                    for f in ("pinv_rtol", "torque_pinv_rtol")
+                ),
+            ],
+        )
         for field in ("com_task", "cam_task"):
             if getattr(self, field) not in names:
                 raise ValueError(f"WBLCConfig.{field}: {getattr(self, field)!r} is not a task")
@@ -133,9 +140,6 @@ class WBLCConfig:
                 f"them, one per hierarchy level ({len(self.hierarchy)}); "
                 f"got {self.hierarchy_inverse!r}"
             )
-        for field in ("pinv_rtol", "torque_pinv_rtol"):
-            if not 0 < getattr(self, field) < 1:
-                raise ValueError(f"WBLCConfig.{field}: must be in (0, 1)")
 
     def task(self, name: str) -> TaskSpec:
         return next(t for t in self.tasks if t.name == name)

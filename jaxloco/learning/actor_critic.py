@@ -37,6 +37,7 @@ import jax.numpy as jnp
 import optax
 from flax import struct
 
+from jaxloco import validation as v
 from jaxloco.learning import policy as pol
 from jaxloco.learning import rbf
 from jaxloco.learning.starts import EpisodeTurns, StartStates, episode_turns, training_starts
@@ -96,30 +97,21 @@ class ActorCriticConfig:
     seed: int = 0
 
     def __post_init__(self):
-        for name in ("alpha", "beta", "init_scale", "spread_target", "spread_step_scale"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"ActorCriticConfig.{name} must be > 0; got {getattr(self, name)}")
-        for name in ("gamma", "lambda_theta", "lambda_w"):
-            if not 0.0 <= getattr(self, name) <= 1.0:
-                raise ValueError(
-                    f"ActorCriticConfig.{name} must be in [0, 1]; got {getattr(self, name)}"
-                )
-        if self.normalize not in ("none", "visits"):
-            raise ValueError(
-                f"ActorCriticConfig.normalize must be 'none' or 'visits'; got {self.normalize!r}"
-            )
-        if self.optimizer not in OPTIMIZERS:
-            raise ValueError(
-                f"ActorCriticConfig.optimizer must be one of {OPTIMIZERS}; got {self.optimizer!r}"
-            )
-        for name in ("episodes_per_iteration", "max_episode_steps", "max_iterations"):
-            # max_iterations = 0: no Algorithm 1 (e.g. refinement from the initial weights).
-            minimum = 0 if name == "max_iterations" else 1
-            if int(getattr(self, name)) != getattr(self, name) or getattr(self, name) < minimum:
-                raise ValueError(
-                    f"ActorCriticConfig.{name} must be an int >= {minimum}; "
-                    f"got {getattr(self, name)}"
-                )
+        v.check_fields(
+            self,
+            [
+                *v.positive(
+                    self, "alpha", "beta", "init_scale", "spread_target", "spread_step_scale"
+                ),
+                *v.unit_interval(self, "gamma", "lambda_theta", "lambda_w"),
+                v.one_of(self, "normalize", ("none", "visits")),
+                v.one_of(self, "optimizer", OPTIMIZERS),
+                v.integer(self, "episodes_per_iteration", 1),
+                v.integer(self, "max_episode_steps", 1),
+                # 0: no Algorithm 1 (e.g. refinement from the initial weights).
+                v.integer(self, "max_iterations", 0),
+            ],
+        )
 
 
 @struct.dataclass

@@ -27,6 +27,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxloco import validation as v
+
 
 @dataclasses.dataclass(frozen=True)
 class RBFGrid:
@@ -41,16 +43,19 @@ class RBFGrid:
     """Cells each side of the nearest centre that a state's features cover."""
 
     def __post_init__(self):
-        if len(self.low) != 3 or len(self.counts) != 3:
-            raise ValueError("RBFGrid.low and RBFGrid.counts must have 3 entries (y, xd, yd)")
-        if any(int(n) != n or n < 1 for n in self.counts):
-            raise ValueError(f"RBFGrid.counts must be ints >= 1; got {self.counts}")
-        for name in ("spacing", "sigma"):
-            value = getattr(self, name)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
-                raise ValueError(f"RBFGrid.{name} must be > 0; got {value!r}")
-        if int(self.radius) != self.radius or self.radius < 0:
-            raise ValueError(f"RBFGrid.radius must be an int >= 0; got {self.radius!r}")
+        v.check_fields(
+            self,
+            [
+                ("low", len(self.low) == 3, "3 numbers (y, xd, yd)"),
+                ("counts", len(self.counts) == 3, "3 numbers (y, xd, yd)"),
+                ("counts", all(int(n) == n and n >= 1 for n in self.counts), "ints >= 1"),
+                *(
+                    (n, isinstance(getattr(self, n), (int, float)) and getattr(self, n) > 0, "> 0")
+                    for n in ("spacing", "sigma")
+                ),
+                v.integer(self, "radius", 0),
+            ],
+        )
 
     @property
     def high(self) -> tuple[float, ...]:

@@ -43,6 +43,7 @@ import jax.numpy as jnp
 import optax
 from tqdm.auto import tqdm
 
+from jaxloco import validation as v
 from jaxloco.learning import policy as pol
 from jaxloco.learning.evaluation import mean_weights_policy
 from jaxloco.learning.starts import StartStates, uniform_states
@@ -81,26 +82,23 @@ class RefineConfig:
     seed: int = 0
 
     def __post_init__(self):
-        for name in ("iterations", "batch", "horizon"):
-            value = getattr(self, name)
-            minimum = 0 if name == "iterations" else 1
-            if int(value) != value or value < minimum:
-                raise ValueError(f"RefineConfig.{name} must be an int >= {minimum}; got {value!r}")
-        for name in ("learning_rate", "adam_eps", "sharpness"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"RefineConfig.{name} must be > 0; got {getattr(self, name)!r}")
-        for name in ("clip_norm", "margin", "reward_weight"):
-            if not getattr(self, name) >= 0:
-                raise ValueError(f"RefineConfig.{name} must be >= 0; got {getattr(self, name)!r}")
-        if not 0.0 <= self.average < 1.0:
-            raise ValueError(f"RefineConfig.average must be in [0, 1); got {self.average!r}")
-        if not 0.0 <= self.discount <= 1.0:
-            raise ValueError(f"RefineConfig.discount must be in [0, 1]; got {self.discount!r}")
-        if not self.infeasible_log_safety <= 0:
-            raise ValueError(
-                "RefineConfig.infeasible_log_safety must be <= 0 (a log probability); "
-                f"got {self.infeasible_log_safety!r}"
-            )
+        v.check_fields(
+            self,
+            [
+                v.integer(self, "iterations", 0),
+                v.integer(self, "batch", 1),
+                v.integer(self, "horizon", 1),
+                *v.positive(self, "learning_rate", "adam_eps", "sharpness"),
+                *v.non_negative(self, "clip_norm", "margin", "reward_weight"),
+                ("average", 0.0 <= self.average < 1.0, "in [0, 1)"),
+                *v.unit_interval(self, "discount"),
+                (
+                    "infeasible_log_safety",
+                    self.infeasible_log_safety <= 0,
+                    "<= 0 (a log probability)",
+                ),
+            ],
+        )
 
 
 def log_soft_safety(plan, psp: PSPParams, cfg: RefineConfig):

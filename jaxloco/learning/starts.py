@@ -13,6 +13,7 @@ import dataclasses
 import jax
 import jax.numpy as jnp
 
+from jaxloco import validation as v
 from jaxloco.planner import PSPParams, lipm
 
 
@@ -36,18 +37,20 @@ class StartStates:
     """Standard deviation of the noise added to pushed states (two grid spacings)."""
 
     def __post_init__(self):
-        if not 0.0 <= self.pushed_fraction <= 1.0:
-            raise ValueError(
-                f"StartStates.pushed_fraction must be in [0, 1]; got {self.pushed_fraction}"
-            )
-        if any(lo >= hi for lo, hi in zip(self.box_low, self.box_high, strict=True)):
-            raise ValueError(
-                f"StartStates.box_low must be < box_high; got {self.box_low}, {self.box_high}"
-            )
-        if self.mass <= 0 or self.push_duration <= 0 or self.noise < 0:
-            raise ValueError("StartStates.mass and push_duration must be > 0 and noise >= 0")
-        if not self.impulses:
-            raise ValueError("StartStates.impulses must not be empty")
+        v.check_fields(
+            self,
+            [
+                *v.unit_interval(self, "pushed_fraction"),
+                (
+                    "box_low",
+                    all(lo < hi for lo, hi in zip(self.box_low, self.box_high, strict=True)),
+                    f"< box_high = {self.box_high} on every axis",
+                ),
+                *v.positive(self, "mass", "push_duration"),
+                *v.non_negative(self, "noise"),
+                ("impulses", len(self.impulses) > 0, "a non-empty list"),
+            ],
+        )
 
 
 @dataclasses.dataclass(frozen=True)
@@ -67,10 +70,13 @@ class EpisodeTurns:
     """Share of episodes that turn; the rest walk straight."""
 
     def __post_init__(self):
-        if not 0.0 <= self.max_deg < 90.0:
-            raise ValueError(f"EpisodeTurns.max_deg must be in [0, 90); got {self.max_deg}")
-        if not 0.0 <= self.fraction <= 1.0:
-            raise ValueError(f"EpisodeTurns.fraction must be in [0, 1]; got {self.fraction}")
+        v.check_fields(
+            self,
+            [
+                ("max_deg", 0.0 <= self.max_deg < 90.0, "in [0, 90)"),
+                *v.unit_interval(self, "fraction"),
+            ],
+        )
 
     @property
     def enabled(self) -> bool:

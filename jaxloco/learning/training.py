@@ -23,6 +23,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxloco import validation as v
 from jaxloco.learning import rbf
 from jaxloco.learning.actor_critic import (
     ActorCriticConfig,
@@ -79,11 +80,14 @@ class EvalConfig:
     through. The kept policy then maximises the mean of the two basins."""
 
     def __post_init__(self):
-        if self.every < 0 or self.num_states < 1 or self.num_steps < 1:
-            raise ValueError(
-                "EvalConfig: every must be >= 0, num_states and num_steps >= 1; "
-                f"got {self.every}, {self.num_states}, {self.num_steps}"
-            )
+        v.check_fields(
+            self,
+            [
+                v.integer(self, "every", 0),
+                v.integer(self, "num_states", 1),
+                v.integer(self, "num_steps", 1),
+            ],
+        )
         # Pairs may come in as lists (JSON, hydra): keep the config hashable.
         segments = tuple(tuple(seg) for seg in self.steering_segments)
         object.__setattr__(self, "steering_segments", segments)

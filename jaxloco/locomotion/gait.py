@@ -56,6 +56,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxloco import validation as v
 from jaxloco.dynamics import se3
 from jaxloco.locomotion.swing import SwingSpline, make_swing, quintic, retarget_swing
 from jaxloco.planner import lipm
@@ -162,61 +163,62 @@ class GaitParams:
     wind up while steering. 0: off."""
 
     def __post_init__(self):
-        checks = {
-            "start_duration": (self.start_duration > 0, "> 0"),
-            "start_lateral": (0 <= self.start_lateral < 0.3, "in [0, 0.3)"),
-            "start_speed": (0 < self.start_speed < 1, "in (0, 1)"),
-            "first_stance": (self.first_stance in (LEFT, RIGHT), "0 (left) or 1 (right)"),
-            "contact_blend": (
+        def finite(name):
+            value = getattr(self, name)
+            return not (isinstance(value, float) and not math.isfinite(value))
+
+        rules = [
+            ("start_duration", self.start_duration > 0, "> 0"),
+            ("start_lateral", 0 <= self.start_lateral < 0.3, "in [0, 0.3)"),
+            ("start_speed", 0 < self.start_speed < 1, "in (0, 1)"),
+            ("first_stance", self.first_stance in (LEFT, RIGHT), "0 (left) or 1 (right)"),
+            (
+                "contact_blend",
                 0 < self.contact_blend < self.min_step_duration,
                 "in (0, min_step_duration)",
             ),
-            "swing_height": (0 <= self.swing_height < 0.5, "in [0, 0.5)"),
-            "min_step_duration": (
+            ("swing_height", 0 <= self.swing_height < 0.5, "in [0, 0.5)"),
+            (
+                "min_step_duration",
                 0 < self.min_step_duration < self.max_step_duration,
                 "in (0, max_step_duration)",
             ),
-            "fallback_duration": (
+            (
+                "fallback_duration",
                 self.min_step_duration <= self.fallback_duration <= self.max_step_duration,
                 "in [min_step_duration, max_step_duration]",
             ),
-            "fallback_dcm_offset": (
+            (
+                "fallback_dcm_offset",
                 all(0 <= b < 0.3 for b in self.fallback_dcm_offset),
                 "two numbers in [0, 0.3)",
             ),
-            "max_lateral_dcm": (
+            (
+                "max_lateral_dcm",
                 all(0 < b < 5 for b in self.max_lateral_dcm),
                 "two numbers in (0, 5)",
             ),
-            "max_com_lead": (0 < self.max_com_lead < 5, "in (0, 5)"),
-            "touchdown_height": (0 < self.touchdown_height < 0.1, "in (0, 0.1)"),
-            "max_touchdown_delay": (0 <= self.max_touchdown_delay < 1, "in [0, 1)"),
-            "late_landing_depth": (0 <= self.late_landing_depth < 0.2, "in [0, 0.2)"),
-            "step_x_range": (
+            ("max_com_lead", 0 < self.max_com_lead < 5, "in (0, 5)"),
+            ("touchdown_height", 0 < self.touchdown_height < 0.1, "in (0, 0.1)"),
+            ("max_touchdown_delay", 0 <= self.max_touchdown_delay < 1, "in [0, 1)"),
+            ("late_landing_depth", 0 <= self.late_landing_depth < 0.2, "in [0, 0.2)"),
+            (
+                "step_x_range",
                 self.step_x_range[0] < 0 < self.step_x_range[1],
                 "(low < 0 < high): stepping back and forth must both be possible",
             ),
-            "step_y_range": (
-                0 < self.step_y_range[0] < self.step_y_range[1],
-                "(0 < low < high)",
-            ),
-            "max_apex_speed": (self.max_apex_speed > 0, "> 0"),
-            "replan_threshold": (self.replan_threshold > 0, "> 0"),
-            "replan_delay": (self.replan_delay >= 0, ">= 0"),
-            "replan_gamma": (0 <= self.replan_gamma <= 1, "in [0, 1]"),
-            "replan_min_remaining": (self.replan_min_remaining >= 0, ">= 0"),
-            "arm_return_rate": (0 <= self.arm_return_rate < 100, "in [0, 100)"),
-            "com_height": (
+            ("step_y_range", 0 < self.step_y_range[0] < self.step_y_range[1], "(0 < low < high)"),
+            *v.positive(self, "max_apex_speed", "replan_threshold"),
+            *v.non_negative(self, "replan_delay", "replan_min_remaining"),
+            *v.unit_interval(self, "replan_gamma"),
+            ("arm_return_rate", 0 <= self.arm_return_rate < 100, "in [0, 100)"),
+            (
+                "com_height",
                 self.com_height is None or 0.5 <= self.com_height <= 1.2,
                 "in [0.5, 1.2] m (or None)",
             ),
-        }
-        for name, (ok, rule) in checks.items():
-            value = getattr(self, name)
-            if isinstance(value, float) and not math.isfinite(value):
-                ok = False
-            if not ok:
-                raise ValueError(f"GaitParams.{name} must be {rule}; got {value!r}")
+        ]
+        v.check_fields(self, [(n, ok and finite(n), rule) for n, ok, rule in rules])
 
 
 @struct.dataclass

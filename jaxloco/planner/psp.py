@@ -32,6 +32,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxloco import validation as v
 from jaxloco.planner import lipm
 
 # |p_x| below this has no switching state (the two orbits are parallel).
@@ -94,27 +95,34 @@ class PSPParams:
                 raise TypeError(f"PSPParams.{f.name} must be a number, got {value!r}")
             if not math.isfinite(value):
                 raise ValueError(f"PSPParams.{f.name} must be finite, got {value!r}")
-        _require(self.g > 0, "g", "> 0", self.g)
-        _require(self.h > 0, "h", "> 0 (CoM height above the stance foot)", self.h)
-        _require(self.t_switch_min >= 0, "t_switch_min", ">= 0", self.t_switch_min)
-        _require(self.t_apex_min >= 0, "t_apex_min", ">= 0", self.t_apex_min)
-        _require(self.xd_apex_nominal > 0, "xd_apex_nominal", "> 0", self.xd_apex_nominal)
-        _require(
-            self.p_y_min < self.p_y_max,
-            "p_y_min",
-            f"< p_y_max = {self.p_y_max} (the lateral step range is empty)",
-            self.p_y_min,
+        v.check_fields(
+            self,
+            [
+                *v.positive(self, "g"),
+                ("h", self.h > 0, "> 0 (CoM height above the stance foot)"),
+                *v.non_negative(self, "t_switch_min", "t_apex_min"),
+                *v.positive(self, "xd_apex_nominal"),
+                (
+                    "p_y_min",
+                    self.p_y_min < self.p_y_max,
+                    f"< p_y_max = {self.p_y_max} (the lateral step range is empty)",
+                ),
+                *v.non_negative(self, "stride_min"),
+                (
+                    "stride_min",
+                    self.stride_min < self.stride_max,
+                    f"< stride_max = {self.stride_max} (the stride range is empty)",
+                ),
+                *(
+                    (
+                        f"{name}_min",
+                        getattr(self, f"{name}_min") < getattr(self, f"{name}_max"),
+                        f"< {name}_max = {getattr(self, f'{name}_max')} (empty action range)",
+                    )
+                    for name in ("p_x", "xd_apex_next", "yd_apex_next")
+                ),
+            ],
         )
-        _require(self.stride_min >= 0, "stride_min", ">= 0", self.stride_min)
-        _require(
-            self.stride_min < self.stride_max,
-            "stride_min",
-            f"< stride_max = {self.stride_max} (the stride range is empty)",
-            self.stride_min,
-        )
-        for name in ("p_x", "xd_apex_next", "yd_apex_next"):
-            low, high = getattr(self, name + "_min"), getattr(self, name + "_max")
-            _require(low < high, name + "_min", f"< {name}_max = {high} (empty action range)", low)
 
     @property
     def action_low(self) -> tuple[float, float, float]:
@@ -135,11 +143,6 @@ class PSPParams:
     def nominal_state(self) -> tuple[float, float, float]:
         """The nominal apex state ``(y_apex_nominal, xd_apex_nominal, 0)``."""
         return (self.y_apex_nominal, self.xd_apex_nominal, 0.0)
-
-
-def _require(ok: bool, field: str, rule: str, value) -> None:
-    if not ok:
-        raise ValueError(f"PSPParams.{field} must be {rule}; got {value!r}")
 
 
 class Reason(enum.IntFlag):

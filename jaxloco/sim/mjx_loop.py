@@ -33,6 +33,7 @@ import numpy as np
 from flax import struct
 from mujoco import mjx
 
+from jaxloco import validation as v
 from jaxloco.sim.push import push_force
 
 
@@ -53,15 +54,18 @@ class PhysicsParams:
     (the WBLC plans torques without limits and the actuators clip them)."""
 
     def __post_init__(self):
-        if self.iterations < 1 or self.ls_iterations < 1:
-            raise ValueError(
-                "PhysicsParams.iterations and ls_iterations must be >= 1; got "
-                f"{self.iterations}, {self.ls_iterations}"
-            )
-        if self.torque_limit is not None and not self.torque_limit > 0:
-            raise ValueError(
-                f"PhysicsParams.torque_limit must be > 0 N m (or None); got {self.torque_limit}"
-            )
+        v.check_fields(
+            self,
+            [
+                v.integer(self, "iterations", 1),
+                v.integer(self, "ls_iterations", 1),
+                (
+                    "torque_limit",
+                    self.torque_limit is None or self.torque_limit > 0,
+                    "> 0 N m (or None: the model's own limits)",
+                ),
+            ],
+        )
 
 
 def physics_model(model: mujoco.MjModel, params: PhysicsParams | None = None) -> mujoco.MjModel:

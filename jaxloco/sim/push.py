@@ -16,6 +16,8 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from jaxloco import validation as v
+
 
 @dataclasses.dataclass(frozen=True)
 class Push:
@@ -28,14 +30,16 @@ class Push:
     body: str = "pelvis"
 
     def __post_init__(self):
-        for name, ok, rule in (
-            ("magnitude", self.magnitude >= 0, ">= 0"),
-            ("direction_deg", math.isfinite(self.direction_deg), "finite"),
-            ("start", self.start >= 0, ">= 0"),
-            ("duration", self.duration > 0, "> 0"),
-        ):
-            if not ok or not math.isfinite(getattr(self, name)):
-                raise ValueError(f"Push.{name} must be {rule}; got {getattr(self, name)!r}")
+        finite = all(math.isfinite(getattr(self, n)) for n in ("magnitude", "start", "duration"))
+        v.check_fields(
+            self,
+            [
+                ("magnitude", self.magnitude >= 0 and finite, ">= 0"),
+                ("direction_deg", math.isfinite(self.direction_deg), "finite"),
+                ("start", self.start >= 0 and finite, ">= 0"),
+                ("duration", self.duration > 0 and finite, "> 0"),
+            ],
+        )
 
     @property
     def impulse(self) -> float:

@@ -16,9 +16,10 @@ import dataclasses
 import hashlib
 import itertools
 import json
-import math
 
 import numpy as np
+
+from jaxloco import validation as v
 
 COLUMNS = (
     "direction_deg",
@@ -81,31 +82,24 @@ class SweepSpec:
     """Pelvis height below which the robot has fallen (m)."""
 
     def __post_init__(self):
-        checks = [
-            ("mode", self.mode in ("grid", "random"), "'grid' or 'random'"),
-            ("num_random", self.num_random >= 1, ">= 1"),
-            ("push_step", self.push_step >= 1, ">= 1"),
-            ("horizon", self.horizon > 0, "> 0"),
-            ("steps_after", self.steps_after >= 0, ">= 0"),
-            ("qvel_noise", self.qvel_noise >= 0, ">= 0"),
-            ("fall_height", self.fall_height > 0, "> 0"),
-        ]
-        for name in LIST_FIELDS:
-            checks.append((name, len(getattr(self, name)) > 0, "a non-empty list"))
-        checks += [
-            ("magnitudes", all(m >= 0 for m in self.magnitudes), "values >= 0 (N)"),
-            ("durations", all(d > 0 for d in self.durations), "values > 0 (s)"),
-            ("phases", all(0 <= p <= 1 for p in self.phases), "values in [0, 1]"),
-            ("apex_speeds", all(v > 0 for v in self.apex_speeds), "values > 0 (m/s)"),
-            ("turns_deg", all(abs(t) <= 45 for t in self.turns_deg), "values in [-45, 45]"),
-            ("seeds", all(int(s) == s and s >= 0 for s in self.seeds), "integers >= 0"),
-        ]
-        for name, ok, rule in checks:
-            if not ok:
-                raise ValueError(f"SweepSpec.{name} must be {rule}; got {getattr(self, name)!r}")
-        for name in ("directions_deg", "magnitudes", "durations", "phases", "turns_deg"):
-            if not all(math.isfinite(v) for v in getattr(self, name)):
-                raise ValueError(f"SweepSpec.{name} must be finite; got {getattr(self, name)}")
+        v.check_fields(
+            self,
+            [
+                v.one_of(self, "mode", ("grid", "random")),
+                v.integer(self, "num_random", 1),
+                v.integer(self, "push_step", 1),
+                *v.positive(self, "horizon", "fall_height"),
+                v.integer(self, "steps_after", 0),
+                *v.non_negative(self, "qvel_noise"),
+                *((name, len(getattr(self, name)) > 0, "a non-empty list") for name in LIST_FIELDS),
+                ("magnitudes", all(m >= 0 for m in self.magnitudes), "values >= 0 (N)"),
+                ("durations", all(d > 0 for d in self.durations), "values > 0 (s)"),
+                ("phases", all(0 <= p <= 1 for p in self.phases), "values in [0, 1]"),
+                ("apex_speeds", all(x > 0 for x in self.apex_speeds), "values > 0 (m/s)"),
+                ("turns_deg", all(abs(t) <= 45 for t in self.turns_deg), "values in [-45, 45]"),
+                ("seeds", all(int(s) == s and s >= 0 for s in self.seeds), "integers >= 0"),
+            ],
+        )
 
     def digest(self) -> str:
         """A short hash of every field: a run directory belongs to one spec."""

@@ -38,6 +38,7 @@ import optax
 from jax.flatten_util import ravel_pytree
 from tqdm.auto import tqdm
 
+from jaxloco import validation as v
 from jaxloco.runtime import write_json
 
 GRADIENT_MODES = ("forward", "reverse", "smoothed")
@@ -70,24 +71,19 @@ class TuneConfig:
     """L-BFGS: most backtracking halvings per iteration."""
 
     def __post_init__(self):
-        if self.method not in ("adam", "lbfgs"):
-            raise ValueError(f"TuneConfig.method must be 'adam' or 'lbfgs'; got {self.method!r}")
-        if self.gradient not in GRADIENT_MODES:
-            raise ValueError(
-                f"TuneConfig.gradient must be one of {GRADIENT_MODES}; got {self.gradient!r}"
-            )
-        if not self.smoothing_sigma > 0 or self.smoothing_pairs < 1:
-            raise ValueError(
-                "TuneConfig.smoothing_sigma must be > 0 and smoothing_pairs >= 1; got "
-                f"{self.smoothing_sigma}, {self.smoothing_pairs}"
-            )
-        if self.iterations < 1:
-            raise ValueError(f"TuneConfig.iterations must be >= 1; got {self.iterations}")
-        for name in ("learning_rate", "clip_norm", "max_grad_norm"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"TuneConfig.{name} must be > 0; got {getattr(self, name)}")
-        if self.tolerance < 0 or self.patience < 1:
-            raise ValueError("TuneConfig.tolerance must be >= 0 and patience >= 1")
+        v.check_fields(
+            self,
+            [
+                v.one_of(self, "method", ("adam", "lbfgs")),
+                v.one_of(self, "gradient", GRADIENT_MODES),
+                *v.positive(self, "smoothing_sigma"),
+                v.integer(self, "smoothing_pairs", 1),
+                v.integer(self, "iterations", 1),
+                *v.positive(self, "learning_rate", "clip_norm", "max_grad_norm"),
+                *v.non_negative(self, "tolerance"),
+                v.integer(self, "patience", 1),
+            ],
+        )
 
 
 class TuningDiverged(RuntimeError):

@@ -29,6 +29,7 @@ import mujoco
 import numpy as np
 from mujoco import mjx
 
+from jaxloco import validation as v
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams, shaking_reference
 from jaxloco.control.wblc import make_wblc
@@ -72,18 +73,22 @@ class ShakingLossParams:
     fall_height: float = 0.7
 
     def __post_init__(self):
-        for name in ("horizon", "torque_scale"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"ShakingLossParams.{name} must be > 0")
-        for name in ("track_weight", "effort_weight", "com_weight", "slip_weight", "fall_weight"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"ShakingLossParams.{name} must be >= 0")
-        if self.segment < 1:
-            raise ValueError(f"ShakingLossParams.segment must be >= 1; got {self.segment}")
-        if not all(0 < f <= 10 for f in self.frequencies):
-            raise ValueError(
-                f"ShakingLossParams.frequencies must be in (0, 10] Hz; got {self.frequencies}"
-            )
+        v.check_fields(
+            self,
+            [
+                *v.positive(self, "horizon", "torque_scale"),
+                *v.non_negative(
+                    self,
+                    "track_weight",
+                    "effort_weight",
+                    "com_weight",
+                    "slip_weight",
+                    "fall_weight",
+                ),
+                v.integer(self, "segment", 1),
+                ("frequencies", all(0 < f <= 10 for f in self.frequencies), "in (0, 10] Hz"),
+            ],
+        )
 
 
 def horizon_steps(model: mujoco.MjModel, params: ShakingLossParams) -> int:
@@ -246,21 +251,31 @@ class PushLossParams:
     fall_height: float = 0.7
 
     def __post_init__(self):
-        for name in ("horizon", "torque_scale", "apex_speed", "risk_threshold", "risk_temperature"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"PushLossParams.{name} must be > 0; got {getattr(self, name)}")
-        for name in ("risk_weight", "dcm_weight", "tilt_weight", "effort_weight", "fall_weight"):
-            if getattr(self, name) < 0:
-                raise ValueError(f"PushLossParams.{name} must be >= 0; got {getattr(self, name)}")
-        if not 0 <= self.phase <= 1:
-            raise ValueError(f"PushLossParams.phase must be in [0, 1]; got {self.phase}")
-        if self.dcm_reference not in ("footstep", "plan"):
-            raise ValueError(
-                "PushLossParams.dcm_reference must be 'footstep' or 'plan'; "
-                f"got {self.dcm_reference!r}"
-            )
-        if self.push_step < 1 or self.segment < 1:
-            raise ValueError("PushLossParams.push_step and segment must be >= 1")
+        v.check_fields(
+            self,
+            [
+                *v.positive(
+                    self,
+                    "horizon",
+                    "torque_scale",
+                    "apex_speed",
+                    "risk_threshold",
+                    "risk_temperature",
+                ),
+                *v.non_negative(
+                    self,
+                    "risk_weight",
+                    "dcm_weight",
+                    "tilt_weight",
+                    "effort_weight",
+                    "fall_weight",
+                ),
+                *v.unit_interval(self, "phase"),
+                v.one_of(self, "dcm_reference", ("footstep", "plan")),
+                v.integer(self, "push_step", 1),
+                v.integer(self, "segment", 1),
+            ],
+        )
 
 
 def push_loss(

@@ -29,6 +29,7 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 
+from jaxloco import validation as v
 from jaxloco.planner.lookahead import action_grid
 from jaxloco.planner.psp import PSPParams, plan_step, safety_margins, smooth_reward
 
@@ -52,17 +53,17 @@ class GradientPlannerParams:
     value_weights: tuple[float, float, float] = (30.0, 1.0, 1.0)
 
     def __post_init__(self):
-        if self.horizon not in (1, 2):
-            raise ValueError(f"GradientPlannerParams.horizon must be 1 or 2; got {self.horizon}")
-        if self.iterations < 1 or any(int(n) < 1 for n in self.start_grid):
-            raise ValueError("GradientPlannerParams.iterations and start_grid must be >= 1")
-        for name in ("learning_rate", "barrier_weight", "barrier_sharpness"):
-            if not getattr(self, name) > 0:
-                raise ValueError(f"GradientPlannerParams.{name} must be > 0")
-        if self.margin < 0 or self.infeasible_penalty < 0 or not 0 <= self.discount <= 1:
-            raise ValueError(
-                "GradientPlannerParams: margin and infeasible_penalty >= 0, discount in [0, 1]"
-            )
+        v.check_fields(
+            self,
+            [
+                v.one_of(self, "horizon", (1, 2)),
+                v.integer(self, "iterations", 1),
+                ("start_grid", all(int(n) >= 1 for n in self.start_grid), "ints >= 1"),
+                *v.positive(self, "learning_rate", "barrier_weight", "barrier_sharpness"),
+                *v.non_negative(self, "margin", "infeasible_penalty"),
+                *v.unit_interval(self, "discount"),
+            ],
+        )
 
     @property
     def num_starts(self) -> int:
