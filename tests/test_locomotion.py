@@ -205,10 +205,11 @@ def test_replan_threshold_is_per_robot_data():
     t_lift, dt = params.start_duration, 1e-3
     replans = {}
     for threshold in (0.05, 0.2):
+        overrides = gait_lib.GaitOverrides.of(params, replan_threshold=threshold)
         state = gait_lib.init_gait(
-            params, psp, jnp.array([0.0, 0.0, 1.06]), feet, replan_threshold=threshold
+            params, psp, jnp.array([0.0, 0.0, 1.06]), feet, overrides=overrides
         )
-        assert float(state.replan_threshold) == threshold
+        assert float(state.overrides.replan_threshold) == threshold
         zero = jnp.zeros(3)
         state = gait_lib.advance(state, params, psp, policy, t_lift, zero, zero, feet, dt)
         step = jax.jit(

@@ -1,11 +1,12 @@
 """Walking on the full humanoid: gait state machine, swing trajectories, replanning, and the
 walking controller that drives WBLC with the learned step planner (paper Section V-B/C)."""
 
-from jaxloco.locomotion.gait import GaitParams, GaitReferences, GaitState
+from jaxloco.locomotion.gait import GaitOverrides, GaitParams, GaitReferences, GaitState
 from jaxloco.locomotion.swing import SwingSpline, make_swing, retarget_swing
 from jaxloco.locomotion.walking import WalkingController, WalkingState, make_walking_controller
 
 __all__ = [
+    "GaitOverrides",
     "GaitParams",
     "GaitReferences",
     "GaitState",

@@ -134,7 +134,7 @@ class GaitParams:
     replan: bool = True
     replan_threshold: float = 0.05
     """Eq. 33's error norm that triggers replanning. Per robot it is data
-    (``init_gait(replan_threshold=...)``), like ``replan_gamma``; as a trigger its
+    (:class:`GaitOverrides`), like ``replan_gamma``; as a trigger its
     pathwise derivative is zero almost everywhere, so tune it with smoothed gradients
     (``TuneConfig(gradient="smoothed")``)."""
     replan_delay: float = 0.02
@@ -142,12 +142,12 @@ class GaitParams:
     replan_gamma: float = 0.5
     """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state, in (0, 1).
     The paper uses 0.8, which under-reacts to a push on this model (docs/locomotion.md).
-    Per robot it is data (``init_gait(replan_gamma=...)``), so it can be traced and tuned
+    Per robot it is data (:class:`GaitOverrides`), so it can be traced and tuned
     by gradient."""
     max_apex_speed: float = 1.0
     """Cap on the next apex velocity the step policy asks for (m/s): sets the walking speed
     below the policy's own (the shipped policy asks for 0.37, the top of its action box).
-    Per robot it is data (``init_gait(apex_speed=...)``), so one compiled controller
+    Per robot it is data (:class:`GaitOverrides`), so one compiled controller
     serves several speeds."""
     replan_min_remaining: float = 0.08
     """No replanning this close to the planned touch-down (s): the foot is landing."""
@@ -222,6 +222,46 @@ class GaitParams:
 
 
 @struct.dataclass
+class GaitOverrides:
+    """Gait numbers that may differ from robot to robot of a batch, as traced data: one
+    compiled controller serves a batch with replanning on for some robots and off for
+    others, several walking speeds, or replan numbers under tuning (gradients go through
+    them). Each defaults to its :class:`GaitParams` field (:meth:`of`)."""
+
+    replan: jax.Array
+    """() bool: whether Eq. 33-34 replanning is on (``GaitParams.replan``)."""
+    apex_speed: jax.Array
+    """() cap on the policy's next-apex velocity (m/s; ``GaitParams.max_apex_speed``)."""
+    replan_gamma: jax.Array
+    """() Eq. 34's blend, in [0, 1] (``GaitParams.replan_gamma``)."""
+    replan_threshold: jax.Array
+    """() Eq. 33's trigger, > 0 (``GaitParams.replan_threshold``)."""
+
+    @classmethod
+    def of(
+        cls,
+        params: GaitParams,
+        dtype=None,
+        replan=None,
+        apex_speed=None,
+        replan_gamma=None,
+        replan_threshold=None,
+    ) -> GaitOverrides:
+        """``params``' values, with those given here in their place."""
+        dtype = dtype or jnp.zeros(()).dtype
+
+        def pick(given, default):
+            return jnp.asarray(default if given is None else given, dtype)
+
+        return cls(
+            replan=jnp.asarray(params.replan if replan is None else replan, bool),
+            apex_speed=pick(apex_speed, params.max_apex_speed),
+            replan_gamma=pick(replan_gamma, params.replan_gamma),
+            replan_threshold=pick(replan_threshold, params.replan_threshold),
+        )
+
+
+@struct.dataclass
 class GaitState:
     phase: jax.Array
     step: jax.Array
@@ -256,15 +296,8 @@ class GaitState:
     turns: jax.Array
     """(N,) heading change per step (rad); after the last, straight on."""
     error_time: jax.Array
-    replan_on: jax.Array
-    """Whether Eq. 33-34 replanning is on for this robot (data, so that one compiled
-    controller serves a batch with replanning on for some robots and off for others)."""
-    apex_speed_cap: jax.Array
-    """The policy's next-apex velocity is clipped to this (m/s)."""
-    replan_gamma: jax.Array
-    """Eq. 34's blend for this robot (``GaitParams.replan_gamma`` unless overridden)."""
-    replan_threshold: jax.Array
-    """Eq. 33's trigger for this robot (``GaitParams.replan_threshold`` unless overridden)."""
+    overrides: GaitOverrides
+    """This robot's replanning switch, speed cap and replan numbers."""
     replans: jax.Array
     failed_plans: jax.Array
     last_apex: jax.Array
@@ -333,17 +366,12 @@ def init_gait(
     heading=0.0,
     turns=None,
     num_turns: int = 1,
-    replan=None,
-    apex_speed=None,
-    replan_gamma=None,
-    replan_threshold=None,
+    overrides: GaitOverrides | None = None,
 ) -> GaitState:
     """The gait at rest in double support (phase START), for a CoM at ``com`` (3,) and the
     feet's contact frames at ``feet_pos`` (2, 3) (left, right); ``heading`` is the walking
-    direction (rad), ``turns`` the per-step heading changes; ``replan``, ``apex_speed``,
-    ``replan_gamma`` and ``replan_threshold`` override ``params.replan``,
-    ``params.max_apex_speed``, ``params.replan_gamma`` and ``params.replan_threshold`` for
-    this robot."""
+    direction (rad), ``turns`` the per-step heading changes; ``overrides``: this robot's
+    per-robot numbers (default: ``GaitOverrides.of(params)``)."""
     com = jnp.asarray(com)
     dtype = com.dtype
     feet_pos = jnp.asarray(feet_pos, dtype)
@@ -378,16 +406,7 @@ def init_gait(
         swing_yaw0=heading,
         turns=turns,
         error_time=zero,
-        replan_on=jnp.asarray(params.replan if replan is None else replan, bool),
-        apex_speed_cap=jnp.asarray(
-            params.max_apex_speed if apex_speed is None else apex_speed, dtype
-        ),
-        replan_gamma=jnp.asarray(
-            params.replan_gamma if replan_gamma is None else replan_gamma, dtype
-        ),
-        replan_threshold=jnp.asarray(
-            params.replan_threshold if replan_threshold is None else replan_threshold, dtype
-        ),
+        overrides=GaitOverrides.of(params, dtype) if overrides is None else overrides,
         replans=jnp.asarray(0, jnp.int32),
         failed_plans=jnp.asarray(0, jnp.int32),
         last_apex=zero3,
@@ -532,7 +551,7 @@ def _begin_step(
         heading,
         sign,
         jnp.asarray(params.fallback_duration, dtype),
-        state.apex_speed_cap,
+        state.overrides.apex_speed,
     )
     duration = jnp.clip(duration, params.min_step_duration, params.max_step_duration)
     target = jnp.append(foot_xy, stance_pos[2])
@@ -576,7 +595,7 @@ def _begin_step(
 
 def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
     """Eq. 34: re-plan the current step from a blend of the desired and measured CoM."""
-    g = state.replan_gamma
+    g = state.overrides.replan_gamma
     ref_pos, ref_vel, _ = com_reference(state, params, psp, t)
     new_pos = g * ref_pos[:2] + (1 - g) * com[:2]
     new_vel = g * ref_vel[:2] + (1 - g) * com_vel[:2]
@@ -600,7 +619,7 @@ def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
         state.heading,
         state.lateral_sign,
         fallback_remaining,
-        state.apex_speed_cap,
+        state.overrides.apex_speed,
     )
     remaining = jnp.clip(duration, params.replan_min_remaining, params.max_step_duration)
     target = jnp.append(foot_xy, state.stance_pos[2])
@@ -700,10 +719,14 @@ def advance(
     elapsed = t - state.step_start
     swinging = (state.phase == WALK) & (elapsed >= params.contact_blend)
     remaining = state.step_duration - elapsed
-    over = swinging & (err > state.replan_threshold) & (remaining > params.replan_min_remaining)
+    over = (
+        swinging
+        & (err > state.overrides.replan_threshold)
+        & (remaining > params.replan_min_remaining)
+    )
     error_time = jnp.where(over, state.error_time + dt, 0.0)
     state = state.replace(error_time=error_time)
-    trigger = over & (error_time > params.replan_delay) & state.replan_on
+    trigger = over & (error_time > params.replan_delay) & state.overrides.replan
     return jax.lax.cond(
         trigger, lambda s: _replan(s, params, psp, policy, t, com, com_vel), lambda s: s, state
     )

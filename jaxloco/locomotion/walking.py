@@ -61,15 +61,10 @@ class WalkingController:
         heading=0.0,
         turns=None,
         num_turns: int = 1,
-        replan=None,
-        apex_speed=None,
-        replan_gamma=None,
-        replan_threshold=None,
+        overrides: gait_lib.GaitOverrides | None = None,
     ) -> WalkingState:
-        """The controller's state for a robot standing at ``qpos`` (``replan``,
-        ``apex_speed``, ``replan_gamma``, ``replan_threshold``: override
-        ``GaitParams.replan``, ``.max_apex_speed``, ``.replan_gamma`` and
-        ``.replan_threshold`` for this robot)."""
+        """The controller's state for a robot standing at ``qpos``; ``overrides``: this
+        robot's per-robot gait numbers (default: ``GaitOverrides.of(gait_params)``)."""
         qpos = jnp.asarray(qpos)
         qvel = jnp.zeros(self.wblc.mx.nv, qpos.dtype) if qvel is None else jnp.asarray(qvel)
         snap = _snapshot(self.wblc.mx, qpos, qvel)  # jitted: see make_walking_controller
@@ -82,10 +77,7 @@ class WalkingController:
             heading,
             turns,
             num_turns,
-            replan,
-            apex_speed,
-            replan_gamma,
-            replan_threshold,
+            overrides,
         )
         return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
 

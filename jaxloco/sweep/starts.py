@@ -22,6 +22,7 @@ import mujoco
 import numpy as np
 
 from jaxloco.dynamics.model import keyframe_qpos
+from jaxloco.locomotion.gait import GaitOverrides
 from jaxloco.locomotion.walking import WalkingController
 
 NUM_TURNS = 64
@@ -90,7 +91,10 @@ def initial_controller_state(
 ):
     qpos = jnp.asarray(keyframe_qpos(model, "walk"))
     turns = np.full(NUM_TURNS, math.radians(turn_deg))
-    return ctrl.init(qpos, turns=turns, replan=bool(replan), apex_speed=float(apex_speed))
+    overrides = GaitOverrides.of(
+        ctrl.gait_params, jnp.asarray(qpos).dtype, replan=bool(replan), apex_speed=apex_speed
+    )
+    return ctrl.init(qpos, turns=turns, overrides=overrides)
 
 
 def snapshot_walk(

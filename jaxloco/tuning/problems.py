@@ -351,7 +351,10 @@ def push_loss(
 
         def one(push):
             gait = state0.controller.gait
-            gait = gait.replace(**{k: jnp.asarray(v, dtype) for k, v in gait_values.items()})
+            overrides = gait.overrides.replace(
+                **{k: jnp.asarray(v, dtype) for k, v in gait_values.items()}
+            )
+            gait = gait.replace(overrides=overrides)
             state = state0.replace(controller=state0.controller.replace(gait=gait))
             row = jnp.stack(
                 [push[0], heading + push[1], jnp.asarray(t0, push.dtype), push[2]]
