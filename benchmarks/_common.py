@@ -50,13 +50,16 @@ def pin_to_one_core() -> int | None:
 
 
 def interleaved(calls: dict, rounds: int) -> dict:
-    """Time several callables round-robin, one call of each per round, so that a slow spell
-    of the machine falls on all of them alike. ``calls``: name -> (fn, units of work per
-    call). Returns per name the median seconds per unit over rounds, and per pair of names
-    (``"a/b"``) the median over rounds of their per-round ratio."""
+    """Time several callables round-robin, one timed call of each per round, so that a slow
+    spell of the machine falls on all of them alike. Each timed call follows an untimed one
+    of the same callable: steady-state times, not those of a cache another callable has just
+    filled with its own data. ``calls``: name -> (fn, units of work per call). Returns per
+    name the median seconds per unit over rounds, and per pair of names (``"a/b"``) the
+    median over rounds of their per-round ratio."""
     samples = {name: [] for name in calls}
     for _ in range(rounds):
         for name, (fn, units) in calls.items():
+            jax.block_until_ready(fn())
             t0 = time.perf_counter()
             jax.block_until_ready(fn())
             samples[name].append((time.perf_counter() - t0) / units)

@@ -16,8 +16,8 @@ orientation and joint posture, one ``solve(True)`` per tick.
 
 The process runs on one core (the peer is single-threaded; sweeps run one worker per
 core). The batched tick is compared with the peer side by side: one batch-64 call and 50
-peer ticks per round, interleaved, so that the machine's slow spells fall on both; the
-target is the median over rounds of their ratio.
+peer ticks per round, interleaved (each after an untimed warm-up call), so that the
+machine's slow spells fall on both; the target is the median over rounds of their ratio.
 """
 
 from __future__ import annotations

@@ -19,20 +19,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import hydra
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.control.gains import apply_gains_file
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.runtime import (
-    configure,
-    enable_compilation_cache,
-    quiet_jax_logs,
-    watchdog,
     write_json,
 )
 from jaxloco.sim.shaking import shaking_metrics, simulate_shaking
@@ -41,7 +36,7 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class BodyShakingConfig:
+class BodyShakingConfig(RunConfig):
     hierarchies: list[str] = field(default_factory=lambda: ["H1", "H2"])
     duration: float = 5.0
     roll_amplitude: float = 0.15
@@ -68,7 +63,7 @@ class BodyShakingConfig:
     dpi: int = 130
 
 
-ConfigStore.instance().store(name="body_shaking", node=BodyShakingConfig)
+register("body_shaking", BodyShakingConfig)
 
 
 def simulate(model, which: str, cfg: BodyShakingConfig):
@@ -93,12 +88,11 @@ def run(cfg: BodyShakingConfig, out_dir: Path) -> dict:
     if not cfg.joint_limits:
         model.jnt_limited[:] = 0
     runs, results = {}, {}
-    with watchdog(cfg.timeout_s, "body shaking"):
-        for which in cfg.hierarchies:
-            res = simulate(model, which, cfg)
-            runs[which] = res
-            results[which] = shaking_metrics(res)
-            log.info("%s: %s", which, results[which])
+    for which in cfg.hierarchies:
+        res = simulate(model, which, cfg)
+        runs[which] = res
+        results[which] = shaking_metrics(res)
+        log.info("%s: %s", which, results[which])
 
     fig = Figure(figsize=(10, 6), constrained_layout=True)
     ax_err, ax_tau = fig.subplots(2, 1, sharex=True)
@@ -134,10 +128,7 @@ def run(cfg: BodyShakingConfig, out_dir: Path) -> dict:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="body_shaking")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    summary = run(OmegaConf.to_object(cfg), out_dir)
+    summary, out_dir = run_in_hydra(cfg, run)
     for which, r in summary["results"].items():
         print(
             f"{which}: RMS body error {r['rms_body_error_rad']:.4f} rad, "
@@ -147,5 +138,4 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

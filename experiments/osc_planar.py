@@ -21,22 +21,21 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from mujoco import mjx
 from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.dynamics import jacobians as J
 from jaxloco.dynamics.model import keyframe_qpos, load_model
 from jaxloco.dynamics.terms import joint_space_terms
-from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import write_json
 
 log = logging.getLogger(__name__)
 
 
 @dataclass
-class OscPlanarConfig:
+class OscPlanarConfig(RunConfig):
     duration: float = 3.0
     x_target: float = 0.62
     amplitude: float = 0.23
@@ -50,7 +49,7 @@ class OscPlanarConfig:
     dpi: int = 130
 
 
-ConfigStore.instance().store(name="osc_planar", node=OscPlanarConfig)
+register("osc_planar", OscPlanarConfig)
 
 
 def make_controller(model, cfg: OscPlanarConfig):
@@ -147,13 +146,9 @@ def run(cfg: OscPlanarConfig, out_dir: Path) -> dict:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="osc_planar")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    run(OmegaConf.to_object(cfg), out_dir)
+    _, out_dir = run_in_hydra(cfg, run)
     print(f"tracking comparison written to {out_dir}")
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

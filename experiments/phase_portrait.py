@@ -17,10 +17,9 @@ from typing import Any
 import hydra
 import jax
 import jax.numpy as jnp
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.planner import (
     PSPParams,
@@ -31,7 +30,7 @@ from jaxloco.planner import (
     sample_com_trajectory,
     turn_schedule,
 )
-from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import write_json
 from jaxloco.viz import plot_phase_portraits, plot_walk
 
 log = logging.getLogger(__name__)
@@ -48,7 +47,7 @@ class LookaheadConfig:
 
 
 @dataclass
-class PhasePortraitConfig:
+class PhasePortraitConfig(RunConfig):
     planner: PSPParamsConfig = field(default_factory=PSPParamsConfig)
     policy: str = "lookahead"
     """``lookahead`` (grid search over the action box) or ``nominal`` (a fixed action)."""
@@ -73,7 +72,7 @@ class PhasePortraitConfig:
     dpi: int = 150
 
 
-ConfigStore.instance().store(name="phase_portrait", node=PhasePortraitConfig)
+register("phase_portrait", PhasePortraitConfig)
 
 
 def make_policy(cfg: PhasePortraitConfig, params: PSPParams):
@@ -162,13 +161,9 @@ def run(cfg: PhasePortraitConfig, out_dir: Path) -> dict:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="phase_portrait")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    run(OmegaConf.to_object(cfg), out_dir)
+    _, out_dir = run_in_hydra(cfg, run)
     print(f"phase portrait and steering walk written to {out_dir}")
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

@@ -19,15 +19,13 @@ import hydra
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.learning import LearnedPlanner, init_train_state, load_planner, steps_survived
 from jaxloco.learning.checkpoint import DEFAULT_POLICY, assets_dir, load_checkpoint_config
 from jaxloco.learning.starts import uniform_states
 from jaxloco.planner import make_lookahead_policy, plan_steps, sample_com_trajectory
-from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import write_json
 from jaxloco.tuning.step_planner import GradientPlannerParams, make_gradient_policy
 from jaxloco.viz import plot_phase_portraits
 from jaxloco.viz.learning import plot_value_map
@@ -36,7 +34,7 @@ log = logging.getLogger(__name__)
 
 
 @dataclass
-class PolicyEvalConfig:
+class PolicyEvalConfig(RunConfig):
     checkpoint: str = ""
     """Checkpoint folder; empty: the default planner shipped in assets/."""
     num_states: int = 4096
@@ -59,7 +57,7 @@ class PolicyEvalConfig:
     dpi: int = 130
 
 
-ConfigStore.instance().store(name="policy_eval", node=PolicyEvalConfig)
+register("policy_eval", PolicyEvalConfig)
 
 
 def run(cfg: PolicyEvalConfig, out_dir: Path) -> dict:
@@ -149,15 +147,11 @@ def _decision_seconds(policy, state, repeats: int) -> float:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="policy_eval")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    summary = run(OmegaConf.to_object(cfg), out_dir)
+    summary, out_dir = run_in_hydra(cfg, run)
     print((out_dir / "basins.md").read_text())
     print(f"evaluation written to {out_dir}")
     del summary
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

@@ -24,11 +24,10 @@ import hydra
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import walking_config
@@ -37,10 +36,6 @@ from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import plan_steps
 from jaxloco.runtime import (
-    configure,
-    enable_compilation_cache,
-    quiet_jax_logs,
-    watchdog,
     write_json,
 )
 from jaxloco.sim.mjx_loop import PhysicsParams
@@ -55,7 +50,7 @@ PhysicsSchema = config_schema(PhysicsParams)
 
 
 @dataclass
-class PushRecoveryConfig:
+class PushRecoveryConfig(RunConfig):
     directions_deg: list = field(default_factory=lambda: [0, 45, 90, 135, 180, 225, 270, 315])
     magnitude: float = 520.0
     push_duration: float = 0.1
@@ -81,7 +76,7 @@ class PushRecoveryConfig:
     dpi: int = 120
 
 
-ConfigStore.instance().store(name="push_recovery", node=PushRecoveryConfig)
+register("push_recovery", PushRecoveryConfig)
 
 
 def replanning_time_15_steps(planner, repeats: int = 200) -> dict:
@@ -134,31 +129,30 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
         for k, g in variants.items()
     }
     results, runs = {}, {}
-    with watchdog(cfg.timeout_s, "push-recovery"):
-        base = simulate_walk(
-            model,
-            ctrls["replan"],
-            cfg.duration,
-            physics=physics,
-            progress="undisturbed",
-        )
-        for name, ctrl in ctrls.items():
-            for direction in cfg.directions_deg:
-                push = Push(cfg.magnitude, float(direction), cfg.push_time, cfg.push_duration)
-                res = simulate_walk(
-                    model,
-                    ctrl,
-                    cfg.duration,
-                    pushes=(push,),
-                    physics=physics,
-                    progress=f"{name} {direction} deg",
-                )
-                runs[name, direction] = res
-                results.setdefault(name, {})[str(direction)] = _outcome(
-                    res, cfg.push_time, cfg.steps_after
-                )
-                log.info("%s %s deg: %s", name, direction, results[name][str(direction)])
-        timing = replanning_time_15_steps(planner)
+    base = simulate_walk(
+        model,
+        ctrls["replan"],
+        cfg.duration,
+        physics=physics,
+        progress="undisturbed",
+    )
+    for name, ctrl in ctrls.items():
+        for direction in cfg.directions_deg:
+            push = Push(cfg.magnitude, float(direction), cfg.push_time, cfg.push_duration)
+            res = simulate_walk(
+                model,
+                ctrl,
+                cfg.duration,
+                pushes=(push,),
+                physics=physics,
+                progress=f"{name} {direction} deg",
+            )
+            runs[name, direction] = res
+            results.setdefault(name, {})[str(direction)] = _outcome(
+                res, cfg.push_time, cfg.steps_after
+            )
+            log.info("%s %s deg: %s", name, direction, results[name][str(direction)])
+    timing = replanning_time_15_steps(planner)
 
     summary = {
         "config": OmegaConf.to_container(OmegaConf.structured(cfg)),
@@ -251,10 +245,7 @@ def _markdown(summary: dict) -> str:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="push_recovery")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    s = run(OmegaConf.to_object(cfg), out_dir)
+    s, out_dir = run_in_hydra(cfg, run)
     for name, count in s["recovered"].items():
         print(f"{name}: recovered {count}/{s['directions']} pushes of {s['impulse_Ns']:.0f} N s")
     print(
@@ -263,5 +254,4 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

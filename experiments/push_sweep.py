@@ -21,16 +21,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import hydra
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.force_qp import ForceQPParams
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import CLOSED_LOOP_QP, walking_config
 from jaxloco.locomotion import GaitParams
-from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, watchdog
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep import SweepSpec, run_sweep, write_report
 
@@ -43,7 +41,7 @@ ForceQPSchema = config_schema(ForceQPParams, CLOSED_LOOP_QP)
 
 
 @dataclass
-class PushSweepConfig:
+class PushSweepConfig(RunConfig):
     sweep: SweepSchema = field(default_factory=SweepSchema)
     gait: GaitSchema = field(default_factory=GaitSchema)
     physics: PhysicsSchema = field(default_factory=PhysicsSchema)
@@ -78,43 +76,40 @@ class PushSweepConfig:
     dpi: int = 120
 
 
-ConfigStore.instance().store(name="push_sweep", node=PushSweepConfig)
+register("push_sweep", PushSweepConfig)
+
+
+def run(cfg, out_dir: Path):
+    """The sweep into ``out_dir`` (resumed if it holds one) and its report."""
+    result = run_sweep(
+        to_params(SweepSpec, cfg.sweep),
+        out_dir,
+        backend=cfg.backend,
+        chunk_size=cfg.chunk_size,
+        gait=apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file),
+        physics=to_params(PhysicsParams, cfg.physics),
+        nthread=cfg.nthread or None,
+        wblc=apply_gains_file(
+            walking_config(
+                pinv_rtol=cfg.pinv_rtol,
+                whiten_tasks=cfg.whiten_tasks,
+                torque_pinv_rtol=cfg.torque_pinv_rtol,
+                force_qp=to_params(ForceQPParams, cfg.force_qp),
+                **({"hierarchy_inverse": cfg.hierarchy_inverse} if cfg.hierarchy_inverse else {}),
+            ),
+            cfg.gains_file,
+        ),
+        config=OmegaConf.to_container(cfg, resolve=True),
+        max_chunks=cfg.max_chunks or None,
+        workers=cfg.workers,
+    )
+    return {"report": write_report(out_dir, dpi=cfg.dpi), "result": result}
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="push_sweep")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    spec = to_params(SweepSpec, cfg.sweep)
-    with watchdog(cfg.timeout_s, "push-sweep"):
-        result = run_sweep(
-            spec,
-            out_dir,
-            backend=cfg.backend,
-            chunk_size=cfg.chunk_size,
-            gait=apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file),
-            physics=to_params(PhysicsParams, cfg.physics),
-            nthread=cfg.nthread or None,
-            wblc=apply_gains_file(
-                walking_config(
-                    pinv_rtol=cfg.pinv_rtol,
-                    whiten_tasks=cfg.whiten_tasks,
-                    torque_pinv_rtol=cfg.torque_pinv_rtol,
-                    force_qp=to_params(ForceQPParams, cfg.force_qp),
-                    **(
-                        {"hierarchy_inverse": cfg.hierarchy_inverse}
-                        if cfg.hierarchy_inverse
-                        else {}
-                    ),
-                ),
-                cfg.gains_file,
-            ),
-            config=OmegaConf.to_container(cfg, resolve=True),
-            max_chunks=cfg.max_chunks or None,
-            workers=cfg.workers,
-        )
-    summary = write_report(out_dir, dpi=cfg.dpi)
+    out, out_dir = run_in_hydra(cfg, run, as_object=False)
+    summary, result = out["report"], out["result"]
     for name, v in summary["variants"].items():
         print(f"{name}: recovered {v['recovered']}/{v['pushes']} ({v['success_rate']:.0%})")
     done = int(result.complete.sum())
@@ -124,5 +119,4 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

@@ -19,10 +19,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import hydra
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
-from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.learning import (
     FAST,
@@ -39,7 +37,7 @@ from jaxloco.learning import (
 from jaxloco.learning.checkpoint import load_checkpoint_config, load_train_state
 from jaxloco.learning.training import params_fingerprint
 from jaxloco.planner import PSPParams
-from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, write_json
+from jaxloco.runtime import write_json
 from jaxloco.viz.learning import plot_learning_curve
 
 log = logging.getLogger(__name__)
@@ -53,7 +51,7 @@ RefineSchema = config_schema(RefineConfig)
 
 
 @dataclass
-class TrainPlannerConfig:
+class TrainPlannerConfig(RunConfig):
     actor_critic: ActorCriticSchema = field(default_factory=ActorCriticSchema)
     grid: GridSchema = field(default_factory=GridSchema)
     starts: StartsSchema = field(default_factory=StartsSchema)
@@ -72,7 +70,7 @@ class TrainPlannerConfig:
     dpi: int = 130
 
 
-ConfigStore.instance().store(name="train_planner", node=TrainPlannerConfig)
+register("train_planner", TrainPlannerConfig)
 
 
 def build_config(cfg: TrainPlannerConfig) -> TrainConfig:
@@ -154,13 +152,9 @@ def _fmt(basin):
 
 @hydra.main(version_base="1.3", config_path=None, config_name="train_planner")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    run(OmegaConf.to_object(cfg), out_dir)
+    _, out_dir = run_in_hydra(cfg, run)
     print(f"checkpoint and learning curve written to {out_dir}")
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

@@ -39,12 +39,11 @@ from typing import Any
 import hydra
 import jax.numpy as jnp
 import numpy as np
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 from tqdm.auto import tqdm
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.gains import save_gains, with_gains
 from jaxloco.control.presets import body_shaking_config
@@ -52,10 +51,6 @@ from jaxloco.control.shaking import ShakingParams
 from jaxloco.control.tasks import default_gains
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.runtime import (
-    configure,
-    enable_compilation_cache,
-    quiet_jax_logs,
-    watchdog,
     write_json,
 )
 from jaxloco.sim.shaking import shaking_metrics, shaking_simulator
@@ -73,7 +68,7 @@ TuneSchema = config_schema(TuneConfig)
 
 
 @dataclass
-class TuneGainsConfig:
+class TuneGainsConfig(RunConfig):
     tuned: list[str] = field(default_factory=lambda: ["body_ori.bandwidth"])
     """Gains to tune: ``task.kp``, ``task.kd`` or ``task.bandwidth`` (kp and kd together at
     the hand-set damping ratio) of the body-shaking config's tasks. The bandwidth by default:
@@ -112,7 +107,7 @@ class TuneGainsConfig:
     dpi: int = 120
 
 
-ConfigStore.instance().store(name="tune_gains", node=TuneGainsConfig)
+register("tune_gains", TuneGainsConfig)
 
 LOSS_TERMS = ("track", "effort", "com", "slip", "fallen")
 
@@ -324,11 +319,7 @@ def run(cfg, out_dir: Path) -> dict:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="tune_gains")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    with watchdog(cfg.timeout_s, "tune-gains"):
-        summary = run(cfg, out_dir)
+    summary, out_dir = run_in_hydra(cfg, run, as_object=False)
     print(summary["tuning"])
     kept = summary["kept"]
     scores = {r["iteration"]: r["score"] for r in summary["validation"]}
@@ -352,5 +343,4 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

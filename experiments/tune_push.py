@@ -46,12 +46,11 @@ import hydra
 import jax
 import jax.numpy as jnp
 import numpy as np
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.gains import save_gains, with_gains
 from jaxloco.control.presets import walking_config
@@ -59,10 +58,6 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.locomotion import GaitParams
 from jaxloco.locomotion.walking import make_walking_controller
 from jaxloco.runtime import (
-    configure,
-    enable_compilation_cache,
-    quiet_jax_logs,
-    watchdog,
     write_json,
 )
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
@@ -97,7 +92,7 @@ other gait phases (48 pushes)."""
 
 
 @dataclass
-class TunePushConfig:
+class TunePushConfig(RunConfig):
     tuned: list[str] = field(default_factory=lambda: ["gait.replan_gamma"])
     """``gait.replan_gamma`` and ``task.kp`` / ``task.kd`` / ``task.bandwidth`` of the
     walking WBLC. Default gamma alone: in a scan on the validation pushes
@@ -138,7 +133,7 @@ def _fields(obj) -> dict:
     return {f.name: getattr(obj, f.name) for f in dataclasses.fields(obj)}
 
 
-ConfigStore.instance().store(name="tune_push", node=TunePushConfig)
+register("tune_push", TunePushConfig)
 
 LOSS_TERMS = ("at_risk", "dcm", "tilt", "effort", "fallen", "untrusted")
 
@@ -369,11 +364,7 @@ def run(cfg, out_dir: Path) -> dict:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="tune_push")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    with watchdog(cfg.timeout_s, "tune-push"):
-        summary = run(cfg, out_dir)
+    summary, out_dir = run_in_hydra(cfg, run, as_object=False)
     print(summary["tuning"])
     kept = summary["kept"]
     print(f"kept iteration {kept['iteration']} (by {kept['by']})")
@@ -396,5 +387,4 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)

@@ -17,11 +17,10 @@ from pathlib import Path
 
 import hydra
 import numpy as np
-from hydra.core.config_store import ConfigStore
-from hydra.core.hydra_config import HydraConfig
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
+from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import walking_config
@@ -30,10 +29,6 @@ from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.planner import turn_schedule
 from jaxloco.runtime import (
-    configure,
-    enable_compilation_cache,
-    quiet_jax_logs,
-    watchdog,
     write_json,
 )
 from jaxloco.sim.mjx_loop import PhysicsParams
@@ -48,7 +43,7 @@ PhysicsSchema = config_schema(PhysicsParams)
 
 
 @dataclass
-class WalkSteerConfig:
+class WalkSteerConfig(RunConfig):
     segments: list = field(default_factory=lambda: [[12, 18.8], [5, 0.0], [12, -18.8]])
     """[[number of steps, degrees per step], ...] (Fig. 11)."""
     pushes: list[Push] = field(default_factory=list)
@@ -72,7 +67,7 @@ class WalkSteerConfig:
     dpi: int = 130
 
 
-ConfigStore.instance().store(name="walk_steer", node=WalkSteerConfig)
+register("walk_steer", WalkSteerConfig)
 
 
 def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
@@ -83,17 +78,16 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
     config = apply_gains_file(walking_config(), cfg.gains_file)
     ctrl = make_walking_controller(model, config=config, gait=gait, planner=planner)
     total = len(turns) + cfg.extra_steps
-    with watchdog(cfg.timeout_s, "walk-steer"):
-        res = simulate_walk(
-            model,
-            ctrl,
-            cfg.max_duration,
-            turns=turns,
-            pushes=tuple(cfg.pushes),
-            max_steps=total,
-            physics=to_params(PhysicsParams, cfg.physics),
-            progress="walk-steer",
-        )
+    res = simulate_walk(
+        model,
+        ctrl,
+        cfg.max_duration,
+        turns=turns,
+        pushes=tuple(cfg.pushes),
+        max_steps=total,
+        physics=to_params(PhysicsParams, cfg.physics),
+        progress="walk-steer",
+    )
     o, t = res.log.outputs, res.log.time
     heading = np.asarray(o["heading"])
     summary = {
@@ -167,10 +161,7 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
 
 @hydra.main(version_base="1.3", config_path=None, config_name="walk_steer")
 def main(cfg) -> None:
-    quiet_jax_logs()
-    enable_compilation_cache()
-    out_dir = Path(HydraConfig.get().runtime.output_dir)
-    s = run(OmegaConf.to_object(cfg), out_dir)
+    s, out_dir = run_in_hydra(cfg, run)
     print(
         f"walk-steer: {s['steps_begun']}/{s['steps_commanded']} steps, fell={s['fell']}, "
         f"final heading {s['final_heading_deg']:.1f} deg, max CoM error "
@@ -179,5 +170,4 @@ def main(cfg) -> None:
 
 
 if __name__ == "__main__":
-    configure()
-    main()
+    launch(main)
