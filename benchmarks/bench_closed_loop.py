@@ -160,26 +160,30 @@ def main() -> None:
             by["mjx", n]["mjx_over_c"] = (
                 by["c", n]["env_steps_per_s"] / by["mjx", n]["env_steps_per_s"]
             )
-    print_table(
-        f"Closed loop (physics + WBLC + gait + planner), {steps} ticks at 1 kHz, Valkyrie "
-        f"(nv = {model.nv}); baseline = physics alone in the same run",
-        rows,
-        [
-            ("backend", "backend", "s"),
-            ("robots", "robots", "d"),
-            ("compile_s", "compile (s)", ".1f"),
-            ("env_steps_per_s", "closed loop env-steps/s", ".0f"),
-            ("physics_env_steps_per_s", "physics alone env-steps/s", ".0f"),
-            ("closed_loop_over_physics", "closed loop / physics time", ".1f"),
-            ("real_time_factor", "real-time factor", ".3f"),
-            ("mjx_over_c", "C speed / MJX speed", ".2f"),
-            ("fell", "fell", "d"),
-        ],
+    tables = []
+    tables.append(
+        print_table(
+            f"Closed loop (physics + WBLC + gait + planner), {steps} ticks at 1 kHz, Valkyrie "
+            f"(nv = {model.nv}); baseline = physics alone in the same run",
+            rows,
+            [
+                ("backend", "backend", "s"),
+                ("robots", "robots", "d"),
+                ("compile_s", "compile (s)", ".1f"),
+                ("env_steps_per_s", "closed loop env-steps/s", ".0f"),
+                ("physics_env_steps_per_s", "physics alone env-steps/s", ".0f"),
+                ("closed_loop_over_physics", "closed loop / physics time", ".1f"),
+                ("real_time_factor", "real-time factor", ".3f"),
+                ("mjx_over_c", "C speed / MJX speed", ".2f"),
+                ("fell", "fell", "d"),
+            ],
+        )
     )
     write_json(
         args.json,
         "closed_loop",
         {"rows": rows, "ticks": steps, "undisturbed_walk_s": walk_s, "quick": args.quick},
+        tables=tables,
     )
 
 

@@ -169,17 +169,20 @@ def main():
     base = rows[1]["single_us"]
     for r in rows:
         r["vs_lie_group"] = r["single_us"] / base
-    print_table(
-        f"Valkyrie dynamics per control tick (batch {batch} for the batched column)",
-        rows,
-        [
-            ("case", "case", "s"),
-            ("single_us", "single call us", ".1f"),
-            ("batched_us_per_state", "batched us/state", ".2f"),
-            ("compile_s", "compile s", ".1f"),
-            ("compile_batched_s", "compile (vmap) s", ".1f"),
-            ("vs_lie_group", "time / Lie group", ".2f"),
-        ],
+    tables = []
+    tables.append(
+        print_table(
+            f"Valkyrie dynamics per control tick (batch {batch} for the batched column)",
+            rows,
+            [
+                ("case", "case", "s"),
+                ("single_us", "single call us", ".1f"),
+                ("batched_us_per_state", "batched us/state", ".2f"),
+                ("compile_s", "compile s", ".1f"),
+                ("compile_batched_s", "compile (vmap) s", ".1f"),
+                ("vs_lie_group", "time / Lie group", ".2f"),
+            ],
+        )
     )
     print(f"max |Lie group - jvp| (float32): {np.abs(ours - by_jvp).max():.2e}")
     write_json(
@@ -191,6 +194,7 @@ def main():
             "rows": rows,
             "lie_vs_jvp_max_abs": float(np.abs(ours - by_jvp).max()),
         },
+        tables=tables,
     )
 
 

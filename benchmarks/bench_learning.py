@@ -172,41 +172,46 @@ def main():
         features, feature_diff = bench_features(2048 if args.quick else 16384, 5)
     peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
-    print_table(
-        "RL-PSP training (basin on 2048 uniform box states, 50 steps, every 25 iterations)",
-        rows,
-        [
-            ("case", "case", "s"),
-            ("iterations", "iters", "d"),
-            ("refine_iterations", "refine", "d"),
-            ("actor_critic_basin", "Alg. 1 basin", ".3f"),
-            ("best_basin", "best basin", ".3f"),
-            ("held_out_basin", "held-out", ".3f"),
-            ("large_draw_basin", "65k draw", ".3f"),
-            ("t_basin_30", "s to 30%", ".1f"),
-            ("t_basin_40", "s to 40%", ".1f"),
-            ("t_basin_50", "s to 50%", ".1f"),
-            ("total_s", "total s", ".1f"),
-            ("compile_s", "compile s", ".1f"),
-            ("train_s", "train s", ".1f"),
-            ("eval_s", "eval s", ".1f"),
-            ("refine_step_ms", "ms/refine", ".0f"),
-            ("transitions_per_s", "steps/s", ".3g"),
-            ("live_transitions_per_s", "live steps/s", ".3g"),
-        ],
+    tables = []
+    tables.append(
+        print_table(
+            "RL-PSP training (basin on 2048 uniform box states, 50 steps, every 25 iterations)",
+            rows,
+            [
+                ("case", "case", "s"),
+                ("iterations", "iters", "d"),
+                ("refine_iterations", "refine", "d"),
+                ("actor_critic_basin", "Alg. 1 basin", ".3f"),
+                ("best_basin", "best basin", ".3f"),
+                ("held_out_basin", "held-out", ".3f"),
+                ("large_draw_basin", "65k draw", ".3f"),
+                ("t_basin_30", "s to 30%", ".1f"),
+                ("t_basin_40", "s to 40%", ".1f"),
+                ("t_basin_50", "s to 50%", ".1f"),
+                ("total_s", "total s", ".1f"),
+                ("compile_s", "compile s", ".1f"),
+                ("train_s", "train s", ".1f"),
+                ("eval_s", "eval s", ".1f"),
+                ("refine_step_ms", "ms/refine", ".0f"),
+                ("transitions_per_s", "steps/s", ".3g"),
+                ("live_transitions_per_s", "live steps/s", ".3g"),
+            ],
+        )
     )
     print("target: basin >= 50% within 10 s (compile included); '-' = not reached")
     print(f"reproducible for a seed: {reproducible} (fingerprint {default_row['fingerprint']})")
     print(f"peak resident memory of this process: {peak_rss_mb:.0f} MB")
-    print_table(
-        "RBF network evaluation (means of 3 actions), per state",
-        features,
-        [
-            ("case", "case", "s"),
-            ("per_state_us", "us/state", ".3f"),
-            ("compile_s", "compile s", ".2f"),
-            ("vs_baseline", "x dense", ".1f"),
-        ],
+    tables.append(
+        print_table(
+            "RBF network evaluation (means of 3 actions), per state",
+            features,
+            [
+                ("case", "case", "s"),
+                ("per_state_us", "us/state", ".3f"),
+                ("compile_s", "compile s", ".2f"),
+                ("vs_baseline", "x dense", ".1f"),
+            ],
+        )
     )
     print(f"(local vs dense max |difference| of the means: {feature_diff:.2e}, truncation)")
     write_json(
@@ -221,6 +226,7 @@ def main():
             "feature_truncation_max_diff": feature_diff,
             "targets": {"basin": 0.5, "seconds": 10.0},
         },
+        tables=tables,
     )
 
 

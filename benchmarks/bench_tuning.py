@@ -92,24 +92,28 @@ def main() -> None:
     base = rows[0]["time_s"]
     for r in rows:
         r["ratio_to_forward"] = r["time_s"] / base
-    print_table(
-        f"Gradient cost vs forward rollout (body shaking, {steps} ticks, 1 robot, float32)",
-        rows,
-        [
-            ("variant", "variant", "s"),
-            ("params", "params", "d"),
-            ("compile_s", "compile s", ".1f"),
-            ("time_s", "s/call", ".3f"),
-            ("ms_per_tick", "ms/tick", ".2f"),
-            ("ratio_to_forward", "x forward", ".2f"),
-            ("temp_MB", "temp MB", ".1f"),
-            ("args_out_MB", "args+out MB", ".2f"),
-        ],
+    tables = []
+    tables.append(
+        print_table(
+            f"Gradient cost vs forward rollout (body shaking, {steps} ticks, 1 robot, float32)",
+            rows,
+            [
+                ("variant", "variant", "s"),
+                ("params", "params", "d"),
+                ("compile_s", "compile s", ".1f"),
+                ("time_s", "s/call", ".3f"),
+                ("ms_per_tick", "ms/tick", ".2f"),
+                ("ratio_to_forward", "x forward", ".2f"),
+                ("temp_MB", "temp MB", ".1f"),
+                ("args_out_MB", "args+out MB", ".2f"),
+            ],
+        )
     )
     write_json(
         args.json,
         "tuning",
         {"ticks": steps, "params": list(TUNED), "rows": rows, "target_ratio": 5.0},
+        tables=tables,
     )
 
 
