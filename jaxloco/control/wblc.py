@@ -318,8 +318,6 @@ def wblc_tick(
     torques = torque_stage(ctrl, snap, hier, qdd_task, forces.solution.forces)
 
     cfg, sol = ctrl.config, forces.solution
-    cam = terms[cfg.cam_task]
-    terms[cfg.cam_task] = cam.replace(desired=cam.desired + forces.cam_shift[1:])
     diagnostics = WBLCDiagnostics(
         qdd_desired=qdd_task + hier.apply_null_space(torques.qdd_res),
         contact_forces=sol.forces,
