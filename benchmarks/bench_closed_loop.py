@@ -26,7 +26,6 @@ import time
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
 import mujoco
 import numpy as np
 
@@ -41,7 +40,7 @@ from jaxloco.dynamics.model import load_valkyrie  # noqa: E402
 from jaxloco.locomotion import make_walking_controller  # noqa: E402
 from jaxloco.runtime import enable_compilation_cache, watchdog  # noqa: E402
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model  # noqa: E402
-from jaxloco.sim.push import body_index  # noqa: E402
+from jaxloco.sim.push import PushArrays, body_index  # noqa: E402
 from jaxloco.sweep.backends import (  # noqa: E402
     CBatchBackend,
     ChunkStarts,
@@ -58,7 +57,7 @@ def starts_for(snap, n):
         np.repeat(snap.times, n),
         np.repeat(snap.physics, n, axis=0),
         jax.tree.map(lambda x: np.repeat(x, n, axis=0), snap.controller),
-        np.zeros((n, 4)),
+        PushArrays.none((n,)),
     )
 
 
@@ -66,7 +65,7 @@ def bench_mjx(sim_model, ctrl, body, starts, steps):
     backend = MJXBackend(sim_model, ctrl, body, 0.7, steps)
     state = mjx_loop_states(sim_model, starts)
     outcome = jax.vmap(init_outcome)(state.controller)
-    pushes = jnp.asarray(starts.pushes, state.data.qpos.dtype)
+    pushes = PushArrays(*starts.pushes).astype(state.data.qpos.dtype)
     compile_s, compiled = compile_seconds(backend._run, state, outcome, pushes)
     t0 = time.perf_counter()
     out = jax.block_until_ready(compiled(state, outcome, pushes))

@@ -55,6 +55,7 @@ from jaxloco.dynamics.model import load_valkyrie  # noqa: E402
 from jaxloco.locomotion import make_walking_controller  # noqa: E402
 from jaxloco.runtime import enable_compilation_cache, watchdog  # noqa: E402
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model  # noqa: E402
+from jaxloco.sim.push import PushArrays  # noqa: E402
 from jaxloco.sweep import SweepSpec, run_sweep  # noqa: E402
 from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states  # noqa: E402
 from jaxloco.sweep.spec import expand  # noqa: E402
@@ -160,7 +161,7 @@ def main() -> None:
         snapshots = {walk_key(1.0, 0.0, True): snap}
         times, phys, cstate = gather_starts(table, np.arange(n), snapshots, 0.0, model.nq, model.nv)
         steps = int(round(spec.horizon / model.opt.timestep))
-        starts = ChunkStarts(times, phys, cstate, np.zeros((n, 4)))
+        starts = ChunkStarts(times, phys, cstate, PushArrays.none((n,)))
         c_phys = physics_alone(sim_model, starts, steps)
         loop = mjx_loop_states(sim_model, starts)
         mjx_compile, mjx_wall = bench_mjx_physics(mjx.put_model(sim_model), loop.data, steps)

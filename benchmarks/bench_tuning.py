@@ -25,7 +25,7 @@ import sys
 from pathlib import Path
 
 import jax
-import jax.numpy as jnp
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
@@ -34,6 +34,7 @@ from _common import compile_seconds, parse_args, print_table, time_calls, write_
 
 from jaxloco.dynamics.model import load_valkyrie  # noqa: E402
 from jaxloco.runtime import enable_compilation_cache, watchdog  # noqa: E402
+from jaxloco.sim.push import PushArrays  # noqa: E402
 from jaxloco.tuning.gains import GainSpace  # noqa: E402
 from jaxloco.tuning.optimize import value_and_grad  # noqa: E402
 from jaxloco.tuning.problems import ShakingLossParams, shaking_loss  # noqa: E402
@@ -51,7 +52,7 @@ def main() -> None:
     space = GainSpace(TUNED)
     problem = ShakingLossParams(horizon=steps * model.opt.timestep, segment=1)
     loss, p0, _ = shaking_loss(model, space, problem)
-    pushes = jnp.zeros((1, 4), jnp.float32)
+    pushes = PushArrays.none(dtype=np.float32)
 
     def fn(p):
         return loss(p, pushes)

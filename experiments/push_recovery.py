@@ -128,6 +128,7 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
         k: make_walking_controller(model, config=config, gait=g, planner=planner)
         for k, g in variants.items()
     }
+    steps = {k: jax.jit(c.step) for k, c in ctrls.items()}  # one compile per variant
     results, runs = {}, {}
     base = simulate_walk(
         model,
@@ -135,6 +136,7 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
         cfg.duration,
         physics=physics,
         progress="undisturbed",
+        step=steps["replan"],
     )
     for name, ctrl in ctrls.items():
         for direction in cfg.directions_deg:
@@ -146,6 +148,7 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
                 pushes=(push,),
                 physics=physics,
                 progress=f"{name} {direction} deg",
+                step=steps[name],
             )
             runs[name, direction] = res
             results.setdefault(name, {})[str(direction)] = _outcome(

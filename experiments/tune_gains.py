@@ -37,7 +37,6 @@ from pathlib import Path
 from typing import Any
 
 import hydra
-import jax.numpy as jnp
 import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
@@ -53,6 +52,7 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.runtime import (
     write_json,
 )
+from jaxloco.sim.push import PushArrays
 from jaxloco.sim.shaking import shaking_metrics, shaking_simulator
 from jaxloco.tuning.gains import GainSpace, tuned_values
 from jaxloco.tuning.optimize import TuneConfig, recorded_params, tune_in_dir
@@ -112,13 +112,8 @@ register("tune_gains", TuneGainsConfig)
 LOSS_TERMS = ("track", "effort", "com", "slip", "fallen")
 
 
-def training_pushes(cfg) -> jnp.ndarray:
-    rows = []
-    for k, p in enumerate(cfg.pushes):
-        if len(p) != 2 or p[0] < 0:
-            raise ValueError(f"pushes[{k}]: want [force N >= 0, direction deg]; got {list(p)}")
-        rows.append([p[0], np.deg2rad(p[1]), cfg.push_start, cfg.push_duration])
-    return jnp.asarray(rows, dtype=jnp.float32)
+def training_pushes(cfg) -> PushArrays:
+    return PushArrays.from_pairs(cfg.pushes, cfg.push_start, cfg.push_duration, np.float32)
 
 
 def training_frequencies(problem: ShakingLossParams, shaking: ShakingParams) -> tuple:

@@ -44,7 +44,6 @@ from typing import Any
 
 import hydra
 import jax
-import jax.numpy as jnp
 import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
@@ -61,6 +60,7 @@ from jaxloco.runtime import (
     write_json,
 )
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
+from jaxloco.sim.push import PushArrays
 from jaxloco.sweep import SweepSpec, paired_comparison, run_sweep, write_report
 from jaxloco.tuning.gains import GainSpace, tuned_values
 from jaxloco.tuning.optimize import TuneConfig, recorded_params, robust_value_and_grad, tune_in_dir
@@ -138,17 +138,9 @@ register("tune_push", TunePushConfig)
 LOSS_TERMS = ("at_risk", "dcm", "tilt", "effort", "fallen", "untrusted")
 
 
-def training_pushes(cfg) -> jnp.ndarray:
-    if not cfg.pushes:
-        raise ValueError("pushes: give at least one [force N, direction deg]")
-    if not cfg.push_duration > 0:
-        raise ValueError(f"push_duration must be > 0 s; got {cfg.push_duration}")
-    rows = []
-    for k, p in enumerate(cfg.pushes):
-        if len(p) != 2 or p[0] < 0:
-            raise ValueError(f"pushes[{k}]: want [force N >= 0, direction deg]; got {list(p)}")
-        rows.append([p[0], np.deg2rad(p[1]), cfg.push_duration])
-    return jnp.asarray(rows)
+def training_pushes(cfg) -> PushArrays:
+    """The training pushes in the walking frame, starting at the push instant."""
+    return PushArrays.from_pairs(cfg.pushes, 0.0, cfg.push_duration)
 
 
 def controller_at(space, params, base, gait: GaitParams, wblc):
@@ -264,7 +256,7 @@ def run(cfg, out_dir: Path) -> dict:
     loss, p0, base = push_loss(sim_model, ctrl, space, problem)
 
     def push_loss_fn(p, push):
-        return loss(p, push[None])
+        return loss(p, jax.tree.map(lambda x: x[None], push))
 
     grad_fn = jax.jit(
         robust_value_and_grad(

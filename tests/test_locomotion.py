@@ -3,6 +3,7 @@ on MuJoCo, and MJX against MuJoCo's C engine."""
 
 import dataclasses
 import json
+import re
 
 import jax
 import jax.numpy as jnp
@@ -22,7 +23,7 @@ from jaxloco.locomotion.swing import KNOTS
 from jaxloco.planner import PSPParams
 from jaxloco.planner.psp import Reason
 from jaxloco.sim import mjx_loop
-from jaxloco.sim.push import Push, apply_push_c, body_index, push_force
+from jaxloco.sim.push import Push, PushArrays, apply_push_c, body_index, push_force
 from jaxloco.sim.scenarios import simulate_walk
 
 # --- swing splines ----------------------------------------------------------------------
@@ -379,16 +380,32 @@ def test_step_timing_adaptation_bounds_the_com_lead():
 
 
 def test_push_force_window_and_direction():
-    row = jnp.asarray(Push(100.0, 90.0, 1.0, 0.1).as_array())
-    np.testing.assert_allclose(push_force(row, 0.99), 0.0)
-    np.testing.assert_allclose(push_force(row, 1.05), [0.0, 100.0, 0.0], atol=1e-9)
-    np.testing.assert_allclose(push_force(row, 1.1), 0.0)
+    pushes = PushArrays.of([Push(100.0, 90.0, 1.0, 0.1), Push(50.0, 180.0, 1.08, 0.1)])
+    assert pushes.magnitude.shape == (2,)
+    force = lambda t: np.asarray(push_force(pushes, t))  # noqa: E731
+    np.testing.assert_allclose(force(0.99), 0.0)
+    np.testing.assert_allclose(force(1.05), [[0.0, 100.0, 0.0], [0.0, 0.0, 0.0]], atol=1e-6)
+    np.testing.assert_allclose(force(1.09), [[0.0, 100.0, 0.0], [-50.0, 0.0, 0.0]], atol=1e-5)
+    np.testing.assert_allclose(force(1.1)[0], 0.0)
     model = load_valkyrie()
     data = mujoco.MjData(model)
-    data.time = 1.05
     pelvis = body_index(model, "pelvis")
-    apply_push_c(model, data, row[None], pelvis)
-    np.testing.assert_allclose(data.xfrc_applied[pelvis, :3], [0.0, 100.0, 0.0], atol=1e-9)
+    for t in (0.99, 1.05, 1.09, 1.2):
+        data.time = t
+        apply_push_c(model, data, pushes, pelvis)
+        np.testing.assert_allclose(data.xfrc_applied[pelvis, :3], force(t).sum(0), atol=1e-5)
+
+
+def test_push_arrays_from_config_pairs():
+    pushes = PushArrays.from_pairs([[150, 90], [0, -45]], 0.3, 0.1, np.float32)
+    np.testing.assert_allclose(pushes.direction, np.radians([90, -45]), rtol=1e-6)
+    np.testing.assert_allclose(pushes.start, 0.3)
+    assert pushes.magnitude.dtype == np.float32
+    for bad, field in (([], "pushes:"), ([[10]], "pushes[0]"), ([[1, 0], [-5, 0]], "pushes[1]")):
+        with pytest.raises(ValueError, match=re.escape(field)):
+            PushArrays.from_pairs(bad, 0.0, 0.1)
+    with pytest.raises(ValueError, match="duration must be > 0"):
+        PushArrays.from_pairs([[1, 0]], 0.0, 0.0)
 
 
 def test_physics_params_torque_limit_clips_every_actuator():
@@ -484,7 +501,7 @@ def test_mjx_and_mujoco_c_agree_through_liftoff(walker):
     physics = mjx_loop.physics_model(model, mjx_loop.PhysicsParams())
     q0 = keyframe_qpos(model, "walk")
     cstate = ctrl.init(jnp.asarray(q0))
-    pushes = jnp.zeros((1, 4))
+    pushes = PushArrays.none()
     mx = mjx.put_model(physics)
     state = mjx_loop.init_loop_state(mx, q0, cstate)
     roll = jax.jit(lambda s: mjx_loop.rollout(mx, ctrl.step, s, pushes, 1, steps, 100))

@@ -18,6 +18,7 @@ from jaxloco.control.gains import (
 )
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.tasks import default_gains
+from jaxloco.sim.push import PushArrays
 from jaxloco.tuning.gains import GainSpace, tuned_values
 from jaxloco.tuning.optimize import TuneConfig, TuningDiverged, tune
 
@@ -278,7 +279,7 @@ def test_closed_loop_gradients_match_finite_differences_and_tuning_lowers_the_lo
     # Start mid-swing (no ramp) so the body error is large from the first tick.
     problem = ShakingLossParams(horizon=0.06, segment=20, slip_weight=100.0)
     loss, p0, _ = shaking_loss(model, space, problem, ShakingParams(ramp=0.0, frequency_hz=2.0))
-    pushes = jnp.zeros((1, 4))
+    pushes = PushArrays.none()
     fn = lambda p: loss(p, pushes)  # noqa: E731
     vg = jax.jit(value_and_grad(fn, "forward"))
     (l0, aux), g = vg(p0)
@@ -349,7 +350,7 @@ def test_shaking_loss_averages_over_its_frequencies():
 
     model = tuning_physics(load_valkyrie())
     space = GainSpace(("body_ori.kp",))
-    pushes = jnp.zeros((1, 4))
+    pushes = PushArrays.none()
 
     def value(frequencies=(), frequency_hz=1.0):
         problem = ShakingLossParams(horizon=0.03, segment=30, frequencies=frequencies)
@@ -494,7 +495,7 @@ def test_push_loss_gradients_while_walking_match_finite_differences():
         physics_model(model, PhysicsParams()), ctrl, space, PushLossParams(horizon=0.1)
     )
     p0 = jax.tree.map(lambda x: x.astype(jnp.float64), p0)
-    pushes = jnp.array([[520.0, 0.0, 0.1]])
+    pushes = PushArrays.from_pairs([[520.0, 0.0]], 0.0, 0.1)
     fn = jax.jit(lambda p: loss(p, pushes))
     (l0, aux), g = jax.jit(value_and_grad(fn, "forward"))(p0)
     assert np.isfinite(float(l0)) and float(aux["fallen"]) == 0.0

@@ -109,12 +109,12 @@ def closed_loop_step(
     push_body: int,
     fall_height: float = 0.7,
 ):
-    """One tick: ``controller(t, qpos, qvel, cstate) -> (torques, cstate, log)``, pushes
-    ``(P, 4)`` rows ``(magnitude, direction_rad, start, duration)`` on ``push_body``, then
-    ``mjx.step``. Returns ``(state, log)``."""
+    """One tick: ``controller(t, qpos, qvel, cstate) -> (torques, cstate, log)``, the
+    :class:`~jaxloco.sim.push.PushArrays` ``pushes`` (world frame, any shape) on
+    ``push_body``, then ``mjx.step``. Returns ``(state, log)``."""
     d = state.data
     torques, cstate, log = controller(d.time, d.qpos, d.qvel, state.controller)
-    force = jnp.sum(jax.vmap(lambda p: push_force(p, d.time))(jnp.atleast_2d(pushes)), axis=0)
+    force = jnp.sum(push_force(pushes, d.time).reshape(-1, 3), axis=0)
     xfrc = jnp.zeros_like(d.xfrc_applied).at[push_body, :3].set(force.astype(d.qpos.dtype))
     new = mjx.step(mx, d.replace(ctrl=torques.astype(d.qpos.dtype), xfrc_applied=xfrc))
     finite = jnp.all(jnp.isfinite(new.qpos)) & jnp.all(jnp.isfinite(new.qvel))

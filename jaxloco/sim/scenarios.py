@@ -17,7 +17,7 @@ from jaxloco.dynamics.model import keyframe_qpos
 from jaxloco.locomotion.walking import WalkingController
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
 from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
-from jaxloco.sim.push import Push, apply_push_c, body_index
+from jaxloco.sim.push import Push, PushArrays, apply_push_c, body_index
 
 
 @dataclasses.dataclass
@@ -27,17 +27,6 @@ class WalkRun:
     steps_taken: int
     fell: bool
     fall_time: float | None
-
-
-_JIT_CACHE: dict = {}
-
-
-def jitted_step(ctrl: WalkingController):
-    """``jax.jit(ctrl.step)``, one per controller (so repeated runs compile once)."""
-    key = id(ctrl)
-    if key not in _JIT_CACHE:
-        _JIT_CACHE[key] = (ctrl, jax.jit(ctrl.step))
-    return _JIT_CACHE[key][1]
 
 
 def simulate_walk(
@@ -50,9 +39,13 @@ def simulate_walk(
     physics: PhysicsParams | None = None,
     fall_height: float = 0.7,
     progress: bool | str = False,
+    step=None,
 ) -> WalkRun:
     """Walk from the ``walk`` keyframe for ``duration`` s (or until ``max_steps`` steps have
-    begun), turning by ``turns`` (rad per step) and pushed by ``pushes``."""
+    begun), turning by ``turns`` (rad per step) and pushed by ``pushes``.
+
+    ``step``: ``jax.jit(ctrl.step)`` to reuse across runs (default: jitted here, so each
+    call traces again; the persistent compile cache saves the compile)."""
     if duration <= 0:
         raise ValueError(f"duration must be > 0; got {duration}")
     sim_model = physics_model(model, physics) if physics is not None else model
@@ -61,7 +54,7 @@ def simulate_walk(
     mujoco.mj_forward(sim_model, data)
     turns = None if turns is None or len(turns) == 0 else np.asarray(turns)
     state = ctrl.init(jnp.asarray(data.qpos), turns=turns)
-    rows = np.array([p.as_array() for p in pushes]) if pushes else None
+    rows = PushArrays.of(pushes) if pushes else None
     bodies = {body_index(model, p.body) for p in pushes}
     if len(bodies) > 1:
         raise ValueError("simulate_walk: all pushes must act on the same body")
@@ -75,7 +68,7 @@ def simulate_walk(
     log, _ = run_closed_loop(
         sim_model,
         data,
-        jitted_step(ctrl),
+        jax.jit(ctrl.step) if step is None else step,
         state,
         int(round(duration / model.opt.timestep)),
         stop=lambda d: d.qpos[2] < fall_height,

@@ -28,7 +28,7 @@ from mujoco import mjx
 
 from jaxloco.locomotion.walking import WalkingController
 from jaxloco.sim.mjx_loop import LoopState, closed_loop_step
-from jaxloco.sim.push import push_force
+from jaxloco.sim.push import PushArrays, push_force
 from jaxloco.sweep.outcome import Outcome, init_outcome, mark_fallen, update_outcome
 from jaxloco.sweep.starts import STATE_SPEC
 
@@ -41,8 +41,8 @@ class ChunkStarts:
     physics: np.ndarray
     """``mjSTATE_INTEGRATION`` rows."""
     controller: object
-    pushes: np.ndarray
-    """(B, 4) push rows ``(magnitude, direction_rad, start, duration)``."""
+    pushes: PushArrays
+    """Each run's push, fields of shape (B,), world frame."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -136,20 +136,20 @@ class CBatchBackend:
         self._ticks = {}  # one compiled tick per layout of the controller state
 
     def _tick_for(self, layout: TreeLayout):
-        """The vmapped tick over packed states: ``(t, qpos, qvel, packed, push, alive) ->
-        (torques and push forces, packed)``. Packing the controller state and the outcome
+        """The vmapped tick over packed states: ``(t, qpos, qvel, packed, alive) -> (torques
+        and push forces, packed)``. Packing the controller state, the outcome and the push
         into one array per dtype keeps the per-tick call to a handful of arrays (each
         array passed to or from a jitted call costs ~1-2 us of dispatch)."""
         if layout not in self._ticks:
             ctrl = self._ctrl
 
-            def tick(t, qpos, qvel, packed, push, alive):
-                cstate, outcome = layout.unpack(packed)
+            def tick(t, qpos, qvel, packed, alive):
+                cstate, outcome, push = layout.unpack(packed)
                 torques, new_cstate, log = ctrl.step(t, qpos, qvel, cstate)
                 outcome = update_outcome(outcome, log, alive)
                 cstate = jax.tree.map(lambda a, b: jnp.where(alive, b, a), cstate, new_cstate)
                 actions = jnp.concatenate([torques, push_force(push, t)])
-                return actions, layout.pack((cstate, outcome))
+                return actions, layout.pack((cstate, outcome, push))
 
             self._ticks[layout] = jax.jit(jax.vmap(tick))
         return self._ticks[layout]
@@ -164,17 +164,17 @@ class CBatchBackend:
         qpos, qvel, time = batch.bind("qpos"), batch.bind("qvel"), batch.bind("time")
         ctrl, xfrc = batch.bind("ctrl"), batch.bind("xfrc_applied")
         cstate = jax.tree.map(jnp.asarray, starts.controller)
-        carry = (cstate, jax.vmap(init_outcome)(cstate))
+        pushes = PushArrays(*(jnp.asarray(x) for x in starts.pushes))
+        carry = (cstate, jax.vmap(init_outcome)(cstate), pushes)
         layout = TreeLayout.of(jax.tree.map(lambda x: x[0], carry))
         tick = self._tick_for(layout)
         packed = jax.vmap(layout.pack)(carry)
-        pushes = jnp.asarray(starts.pushes)
         nu = m.nu
         t0 = starts.times.copy()
         alive = np.ones(n, bool)
         fall_time = np.full(n, np.inf)
         for _ in range(horizon_steps):
-            actions, packed = tick(time, qpos, qvel, packed, pushes, alive)
+            actions, packed = tick(time, qpos, qvel, packed, alive)
             ids = np.flatnonzero(alive)
             if ids.size == 0:
                 break
@@ -188,7 +188,7 @@ class CBatchBackend:
             alive &= ~fell
             if progress is not None:
                 progress(n)
-        _, outcome = jax.vmap(layout.unpack)(packed)
+        _, outcome, _ = jax.vmap(layout.unpack)(packed)
         fell = ~alive
         return outcome.replace(
             fell=jnp.asarray(fell),
@@ -222,7 +222,7 @@ class MJXBackend:
             def tick(carry, _):
                 s, o = carry
                 alive = ~s.fell
-                s, log = closed_loop_step(mx, ctrl.step, s, push[None], push_body, fall_height)
+                s, log = closed_loop_step(mx, ctrl.step, s, push, push_body, fall_height)
                 o = update_outcome(o, log, alive)
                 o = mark_fallen(o, s.fell, s.fall_time - t0)
                 return (s, o), None
@@ -254,7 +254,7 @@ class MJXBackend:
             raise ValueError(f"chunk of {n} runs is not a multiple of {self.batch_multiple}")
         state = mjx_loop_states(self.model, starts, self.mx)
         outcome = jax.vmap(init_outcome)(state.controller)
-        pushes = jnp.asarray(starts.pushes, state.data.qpos.dtype)
+        pushes = PushArrays(*starts.pushes).astype(state.data.qpos.dtype)
         args = (state, outcome, pushes)
         if self.sharding is not None:
             args = jax.device_put(args, self.sharding)

@@ -31,7 +31,7 @@ from jaxloco.control.wblc import WBLCConfig
 from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
-from jaxloco.sim.push import body_index
+from jaxloco.sim.push import PushArrays, body_index
 from jaxloco.sweep.backends import CBatchBackend, ChunkStarts, MJXBackend
 from jaxloco.sweep.outcome import finalize
 from jaxloco.sweep.spec import PushTable, SweepSpec, expand
@@ -235,14 +235,11 @@ def _chunk_starts(ctx, spec, table, rows, chunk_size) -> ChunkStarts:
         table, padded, ctx.snapshots, spec.qvel_noise, model.nq, model.nv
     )
     heading = np.asarray(cstate.gait.heading, float)
-    pushes = np.stack(
-        [
-            table["magnitude"][padded],
-            heading + np.radians(table["direction_deg"][padded]),
-            times,
-            table["duration"][padded],
-        ],
-        axis=1,
+    pushes = PushArrays(
+        magnitude=table["magnitude"][padded],
+        direction=heading + np.radians(table["direction_deg"][padded]),
+        start=times,
+        duration=table["duration"][padded],
     )
     return ChunkStarts(times, phys, cstate, pushes)
 

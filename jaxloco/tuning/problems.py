@@ -36,7 +36,7 @@ from jaxloco.control.wblc import make_wblc
 from jaxloco.dynamics.model import keyframe_qpos
 from jaxloco.locomotion.gait import com_reference
 from jaxloco.sim.mjx_loop import init_loop_state
-from jaxloco.sim.push import body_index
+from jaxloco.sim.push import PushArrays, body_index
 from jaxloco.tuning.gains import GainSpace
 from jaxloco.tuning.rollout import check_differentiable, mean_costs
 
@@ -105,9 +105,10 @@ def shaking_loss(
 ):
     """``(loss_fn, init_params, base_gains)``.
 
-    ``loss_fn(gain_params, pushes) -> (loss, costs)``: ``pushes`` is ``(B, 4)`` rows
-    ``(magnitude N, direction rad, start s, duration s)`` on the pelvis, one rollout per row
-    and frequency of ``params.frequencies`` (use a zero-magnitude row for no push);
+    ``loss_fn(gain_params, pushes) -> (loss, costs)``: ``pushes`` is a
+    :class:`~jaxloco.sim.push.PushArrays` of shape ``(B,)`` on the pelvis (world frame, times
+    from the start of the shaking), one rollout per push and frequency of
+    ``params.frequencies`` (:meth:`~jaxloco.sim.push.PushArrays.none` for no push);
     ``costs`` holds each term averaged over the batch. ``model`` must be a physics model
     with one solver iteration (:func:`~jaxloco.tuning.rollout.tuning_physics`).
     """
@@ -157,7 +158,7 @@ def shaking_loss(
                 state,
                 steps,
                 params.segment,
-                push[None, :],
+                push,
                 pelvis,
                 params.fall_height,
             )
@@ -293,9 +294,11 @@ def push_loss(
     The undisturbed walk up to the push is simulated once, on MuJoCo C, as the sweeps do
     (:func:`~jaxloco.sweep.starts.snapshot_walk`); every loss evaluation starts there.
 
-    ``loss_fn(tuned, pushes) -> (loss, costs)``: ``pushes`` is ``(B, 3)`` rows
-    ``(force N, direction rad in the walking frame (0: forward), duration s)``, one MJX
-    rollout each. ``space`` may name WBLC gains and ``"gait.replan_gamma"``.
+    ``loss_fn(tuned, pushes) -> (loss, costs)``: ``pushes`` is a
+    :class:`~jaxloco.sim.push.PushArrays` of shape ``(B,)``, one MJX rollout each, in the
+    walking frame at the push: ``direction`` from the heading (0: forward) and ``start``
+    in s after the push instant (``params.phase`` of step ``params.push_step``; 0: at it).
+    ``space`` may name WBLC gains and ``"gait.replan_gamma"``.
     """
     from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states
     from jaxloco.sweep.starts import snapshot_walk
@@ -307,7 +310,7 @@ def push_loss(
         sim_model, ctrl, jax.jit(ctrl.step), params.apex_speed, 0.0, True, params.push_step,
         [params.phase], params.fall_height,
     )  # fmt: skip
-    starts = ChunkStarts(snaps.times, snaps.physics, snaps.controller, np.zeros((1, 4)))
+    starts = ChunkStarts(snaps.times, snaps.physics, snaps.controller, PushArrays.none())
     state0 = jax.tree.map(lambda x: x[0], mjx_loop_states(sim_model, starts))
     mx = mjx.put_model(sim_model)
     t0 = float(snaps.times[0])
@@ -356,11 +359,9 @@ def push_loss(
             )
             gait = gait.replace(overrides=overrides)
             state = state0.replace(controller=state0.controller.replace(gait=gait))
-            row = jnp.stack(
-                [push[0], heading + push[1], jnp.asarray(t0, push.dtype), push[2]]
-            ).astype(dtype)
+            world = push._replace(direction=heading + push.direction, start=t0 + push.start)
             final, costs = mean_costs(
-                mx, controller, state, steps, params.segment, row[None], body,
+                mx, controller, state, steps, params.segment, world.astype(dtype), body,
                 params.fall_height,
             )  # fmt: skip
             duration = steps * sim_model.opt.timestep

@@ -24,6 +24,7 @@ import jax.numpy as jnp
 import mujoco
 
 from jaxloco.sim.mjx_loop import LoopState, PhysicsParams, closed_loop_step, physics_model
+from jaxloco.sim.push import PushArrays
 
 
 def tuning_physics(
@@ -67,7 +68,8 @@ def mean_costs(
         raise ValueError(
             f"mean_costs: steps ({steps}) must be a positive multiple of segment ({segment})"
         )
-    pushes = jnp.zeros((1, 4), state.data.qpos.dtype) if pushes is None else pushes
+    if pushes is None:
+        pushes = PushArrays.none(dtype=state.data.qpos.dtype)
 
     def tick(s, _):
         s, log = closed_loop_step(mx, controller, s, pushes, push_body, fall_height)
