@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import statistics
@@ -147,14 +148,22 @@ def print_table(title: str, rows: list[dict], columns: list[tuple[str, str, str]
 
 def target(name: str, measured: float, limit: float, unit: str, at_most: bool = True) -> dict:
     """One target of a benchmark: ``measured`` against ``limit`` (``at_most``: the measured
-    value must not exceed it; else it must reach it)."""
-    met = measured <= limit if at_most else measured >= limit
+    value must not exceed it; else it must reach it). A measurement that is not a finite
+    number (e.g. a level never reached) is recorded as ``None`` and misses the target."""
+    finite = math.isfinite(measured)
+    met = finite and (measured <= limit if at_most else measured >= limit)
     return {
         "name": name,
-        "measured": float(measured),
+        "measured": float(measured) if finite else None,
         "target": f"{'<=' if at_most else '>='} {limit:g} {unit}".strip(),
         "met": bool(met),
     }
+
+
+def print_targets(targets: list[dict]) -> None:
+    for t in targets:
+        value = "not reached" if t["measured"] is None else f"{t['measured']:.4g}"
+        print(f"target: {t['name']}: {value} (required {t['target']}; met: {t['met']})")
 
 
 def _commit() -> str:

@@ -18,7 +18,15 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from _common import compile_seconds, parse_args, print_table, time_calls, write_json
+from _common import (
+    compile_seconds,
+    parse_args,
+    print_table,
+    print_targets,
+    target,
+    time_calls,
+    write_json,
+)
 from mujoco import mjx
 
 from jaxloco.dynamics import centroidal as C
@@ -185,6 +193,22 @@ def main():
         )
     )
     print(f"max |Lie group - jvp| (float32): {np.abs(ours - by_jvp).max():.2e}")
+    lie, jvp, c_row = rows[1], rows[2], rows[3]
+    targets = [
+        target(
+            "J-dot q-dot, one call: jax.jvp time over Lie group time",
+            jvp["single_us"] / lie["single_us"], 1, "x", at_most=False,
+        ),
+        target(
+            "J-dot q-dot, batched: jax.jvp time over Lie group time",
+            jvp["batched_us_per_state"] / lie["batched_us_per_state"], 1, "x", at_most=False,
+        ),
+        target(
+            "J-dot q-dot, batched per state: MuJoCo C time over Lie group time",
+            c_row["batched_us_per_state"] / lie["batched_us_per_state"], 1, "x", at_most=False,
+        ),
+    ]  # fmt: skip
+    print_targets(targets)
     write_json(
         args.json,
         "bench_dynamics",
@@ -195,6 +219,7 @@ def main():
             "lie_vs_jvp_max_abs": float(np.abs(ours - by_jvp).max()),
         },
         tables=tables,
+        targets=targets,
     )
 
 

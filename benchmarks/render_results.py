@@ -47,7 +47,12 @@ def render_benchmark(result: dict) -> list[str]:
         lines += _markdown_table(
             ["target", "measured", "required", "met"],
             [
-                [t["name"], t["measured"], t["target"].strip(), "yes" if t["met"] else "**no**"]
+                [
+                    t["name"],
+                    "-" if t["measured"] is None else t["measured"],
+                    t["target"].strip(),
+                    "yes" if t["met"] else "**no**",
+                ]
                 for t in targets
             ],
         )

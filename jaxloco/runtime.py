@@ -91,11 +91,9 @@ def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path
 def cpu_compiler_options() -> dict | None:
     """``jax.jit(..., compiler_options=...)`` for the RBF learning programs on the CPU.
 
-    XLA:CPU's LLVM optimisation level 1 instead of its default: measured on the 2-core
-    Xeon VM, it runs the refinement step 1.5x faster and Algorithm 1's
-    iteration 1.2x faster over a 600-iteration training run (2.2x over its first 10
-    iterations), the RBF window gathers and scatters being what gains; it compiles as fast
-    and gives the same results up to float round-off. ``None`` (XLA's defaults) on other backends.
+    XLA:CPU's LLVM optimisation level 1 instead of its default: the RBF window's gathers
+    and scatters run faster with it, it compiles as fast, and the results agree up to float
+    round-off (``docs/learning.md``). ``None`` (XLA's defaults) on other backends.
     """
     return {"xla_backend_optimization_level": 1} if jax.default_backend() == "cpu" else None
 

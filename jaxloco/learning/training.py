@@ -50,18 +50,15 @@ FAST = ActorCriticConfig(
     spread_step_scale=0.2,
     initial_spread=0.1,
     # Tighter than the paper's 0.07: with this preset the spreads pass 0.07 while the
-    # survival basin is still rising (measured: 34.5% there, ~40% a few hundred iterations on).
+    # survival basin is still rising (docs/learning.md).
     spread_target=0.05,
 )
 
 
 STEERING = EpisodeTurns(max_deg=20.0, fraction=0.5)
-"""Half of the episodes turn by up to 20 deg a step (Fig. 11 turns 18.8). Measured on the
-reduced LIPM (seed 0, 2048 box states): straight training (600 iterations) keeps a 0.407
-survival basin but walks Fig. 11's schedule from 0% of the box; with these turns (800
-iterations) the kept policy has 0.416 and walks the schedule from 31%. Not the shipped
-default: on the full robot it recovered fewer 520 N pushes of the default sweep (28/32
-against 32/32 with replanning)."""
+"""Half of the episodes turn by up to 20 deg a step (Fig. 11 turns 18.8): a policy that walks
+Fig. 11's schedule from more of the box. Not the shipped default, which recovers more pushes
+on the full robot (``docs/learning.md``)."""
 
 
 @dataclasses.dataclass(frozen=True)

@@ -111,9 +111,8 @@ class GaitParams:
     dorsiflexion limit (-0.93 rad) with the CoM 0.15-0.2 m ahead (traced after 520 N
     pushes); the heel then lifts, the flat-foot contact constraint no longer holds and the
     robot pitches over. Undisturbed walking lands with the CoM 0.15-0.17 m ahead. A step
-    planned to land after the LIPM's CoM passes this bound lands then, on the capture step.
-    On the 40-push 520 N criterion sweep (C backend) 0.16 / 0.18 / 0.19 / 0.2 recovered
-    36 / 39 / 38 / 37 (37 without the bound)."""
+    planned to land after the LIPM's CoM passes this bound lands then, on the capture step
+    (docs/locomotion.md)."""
     step_x_range: tuple[float, float] = (-0.45, 0.65)
     step_y_range: tuple[float, float] = (0.12, 0.6)
     """Kinematic limits of a footstep in the stance frame (m): every planned or fallback

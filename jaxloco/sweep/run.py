@@ -159,9 +159,7 @@ def run_sweep(
 
 
 # A worker process takes ~10-15 s to start (imports, controller, walks from disk, the tick
-# from the compile cache). Measured on 2 cores: two workers lost on sweeps of 8
-# robot-seconds (39 s against 31 s cached) and won on 100 (the 40-push criterion sweep) and
-# 160 (`make run`: 2 min 06 s, against 3 min 45 s in one process).
+# from the compile cache), so small sweeps run in one process (docs/sweep.md).
 _ROBOT_SECONDS_PER_WORKER = 50.0
 
 

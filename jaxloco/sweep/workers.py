@@ -1,11 +1,8 @@
 """A sweep's chunks run side by side in worker processes, one per CPU core.
 
-Why processes: the batched WBLC tick keeps one core busy, not two. Measured on the 2-core
-VM (vmap batch 64, float32): 720-750 us per robot-tick with XLA's default two
-threads, 655 us pinned to one core, and 665-675 us each for two processes pinned to the
-two cores at once, so two processes do twice the work of one. Two Python threads calling
-the same jitted controller at once hung inside XLA:CPU (the thread-pool hang the
-sweep's watchdog guards against), so the parallelism is across processes.
+Why processes: the batched WBLC tick keeps one core busy, not two, so one pinned process
+per core does the most work; two Python threads calling the same jitted controller at once
+hung inside XLA:CPU (``docs/sweep.md``).
 
 The parent walks the undisturbed walks first (they are kept on disk) and, when JAX's
 persistent compilation cache is on, compiles the chunk's tick into it; then it starts

@@ -9,11 +9,9 @@
 
 Gradients (``gradient``): ``forward`` (default) pushes one tangent per parameter through
 the rollout with ``jax.jvp`` (vmapped; the primal is computed once). It costs about (1 + P)
-rollouts for P parameters, needs memory independent of the horizon, and XLA compiled it in
-81-105 s here (4 gains, float32). ``reverse`` is ``jax.value_and_grad``: its cost does not
-grow with P, but XLA took 200 s to compile the reverse pass of a WBLC + ``mjx.step``
-rollout (1-tick checkpoints). With 4 gains it ran slightly slower than forward mode, so it
-pays only for many parameters (measured, ``benchmarks/bench_tuning.py``).
+rollouts for P parameters and needs memory independent of the horizon. ``reverse`` is
+``jax.value_and_grad``: its cost does not grow with P, but it compiles about twice as long,
+so it pays only for many parameters (``benchmarks/bench_tuning.py``).
 
 Every iteration checks the loss and the gradient: a non-finite value, or a gradient norm
 above ``max_grad_norm``, stops the loop with :class:`TuningDiverged` naming the iteration
@@ -196,8 +194,8 @@ def robust_value_and_grad(
     samples whose own gradient is finite and of norm <= ``max_sample_grad_norm``.
 
     Why: through a contact event (a touch-down, a new plan) a pathwise derivative can be
-    1e7 times what central differences give while the other samples' agree with theirs
-    (measured: 1 of 8 walking pushes, ``problems.push_loss``). One such sample decides the
+    orders of magnitude off what central differences give while the other samples' agree
+    with theirs (``docs/tuning.md``). One such sample decides the
     mean; dropping it leaves the gradient of the samples that can be trusted. The loss
     still averages them all; ``aux["untrusted"]`` is the fraction dropped. ``smoothing``:
     ``sigma``, ``pairs``, ``seed`` of ``mode="smoothed"`` (:func:`value_and_grad`).

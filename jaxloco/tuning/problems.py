@@ -13,9 +13,7 @@ averaged over the points). The CoM term is the smooth surrogate of falling that 
 for (a pushed robot that falls first drifts away); the slip term catches the slow creep of
 the feet under the shaking's oscillating loads, which stiffer body gains speed up and which
 degrades tracking (or ends in a fall) seconds later, beyond any horizon that is affordable
-to differentiate (measured on MuJoCo C, 1 Hz, 5 s: with hand-set gains a contact point
-crept 2.4 cm; with stiffer gains tuned without this term the left foot moved 4.6 cm and a
-hip reached its yaw limit).
+to differentiate (see ``docs/tuning.md``).
 ``fallen`` itself has zero gradient and is there so a fall never looks like a good value.
 """
 
@@ -46,24 +44,24 @@ class ShakingLossParams:
     """The body-shaking tuning problem: what is simulated and how it is scored."""
 
     hierarchy: str = "H1"
-    """Eq. 32's H1 (stable in our reproduction) or H2 (its 5 s shaking diverges; tuning
-    its body gains lowered the held-out error from 1.19 to 0.77 rad RMS, not a fix)."""
+    """Eq. 32's H1 (stable in our reproduction) or H2 (its 5 s shaking diverges, and tuning
+    its body gains does not fix that)."""
     horizon: float = 1.0
     """Simulated seconds per loss evaluation."""
     segment: int = 1
-    """Ticks per checkpointed segment (memory vs recompute, see :mod:`.rollout`). Reverse
-    mode only; 1 (every tick checkpointed) because with 50, XLA's compile of the reverse
-    pass ran over 14 minutes on CPU and was stopped (1: 200 s; measured)."""
+    """Ticks per checkpointed segment (memory vs recompute, see :mod:`.rollout`), >= 1.
+    Reverse mode only; 1 because XLA:CPU compiles longer segments' reverse pass far more
+    slowly."""
     pinv_rtol: float = 1e-2
     """The hierarchy's rank threshold (as in ``experiments/body_shaking.py``)."""
     frequencies: tuple[float, ...] = ()
     """Shaking frequencies (Hz) the loss averages over, one rollout per frequency and push;
-    empty: the shaking's own ``frequency_hz`` only. Gains tuned at one frequency overfit it
-    (the held-out error at 1.5 Hz doubled after tuning at 1 Hz)."""
+    empty: the shaking's own ``frequency_hz`` only. Gains tuned at one frequency overfit
+    it."""
     track_weight: float = 1.0
     effort_weight: float = 0.01
     torque_scale: float = 300.0
-    """``|tau|`` is measured in units of this (N m): the effort term is O(1) near standing."""
+    """Torque scale (N m) of the effort term, which is then O(1) near standing."""
     com_weight: float = 10.0
     slip_weight: float = 0.0
     """Weight of the feet's creep (m^2 of contact-point displacement, time-averaged). 0 by
@@ -197,10 +195,9 @@ class PushLossParams:
     with ``dcm``, ``tilt`` and the effort averaged over the horizon's ticks. The first
     term is a smooth count of the pushes likely to end in a fall: ``dcm`` spans four
     decades over pushes and a mean of it follows the few hopeless ones, while whether a
-    push is recovered turns on whether it is above a threshold (measured on
-    the 24 validation pushes at gammas 0.1/0.3/0.5/0.7 against their 2.5 s outcomes on
-    MuJoCo C: ``dcm`` > 0.02 marked the falls of 79-88% of pushes; the mean of ``dcm``
-    ranked gamma 0.5 best, the soft count ranked the gammas as the outcomes did).
+    push is recovered turns on whether it is above a threshold (on MuJoCo C the soft count
+    ranked replan gammas as the recovered counts did, the mean of ``dcm`` did not; see
+    ``docs/tuning.md``).
 
     ``xi = c + c_dot / omega`` is the CoM's horizontal divergent component (capture point).
     What it is compared with (``dcm_reference``):
@@ -214,8 +211,8 @@ class PushLossParams:
       the plan unchanged does not.
     - ``"plan"``: ``xi_plan`` is the capture point of the step as planned before the push,
       at the same time: how far the push threw the robot off that plan. It penalises
-      leaving the old plan, which is what recovery needs (measured: gamma
-      0.5 -> 0.41 raised this loss by 20% while recovering more validation pushes).
+      leaving the old plan, which recovery needs: it can rise while more pushes are
+      recovered.
 
     ``tilt`` is the squared change of the pelvis's up axis since the push began. Both are
     smooth surrogates of falling, and neither rewards moving the CoM reference (Eq. 33's

@@ -10,9 +10,9 @@ Memory: the ticks are scanned in segments of ``segment`` ticks, each segment und
 ``jax.checkpoint``. The backward pass keeps one loop state per segment and recomputes a
 segment's ticks when it gets there, so memory grows as ``steps / segment + segment`` loop
 states instead of ``steps`` full sets of intermediates, at the price of one extra forward
-pass (``segment`` near ``sqrt(steps)`` minimises it in principle). On CPU, though, XLA's
-compile of the reverse pass with ``segment=50`` ran over 14 minutes and was stopped, while
-``segment=1`` compiled in 200 s, and that is what the tuning problems use (measured).
+pass (``segment`` near ``sqrt(steps)`` minimises it in principle). On CPU, though, XLA
+compiles the reverse pass of long segments far more slowly, so the tuning problems use
+``segment=1`` (``docs/tuning.md``).
 """
 
 from __future__ import annotations
