@@ -1,24 +1,33 @@
-"""Batched push-recovery sweep (the main job): pushes in every direction, magnitude, phase.
+"""Batched push recovery (the main job): how strong a push the walking robot takes.
 
-    jaxloco push-sweep                                       # default sweep (~10 min, 2 cores)
-    jaxloco push-sweep 'sweep.magnitudes=[300,520,700]' 'sweep.phases=[0.2,0.5,0.8]'
-    jaxloco push-sweep backend=mjx chunk_size=32             # MJX instead of MuJoCo C
-    jaxloco push-sweep workers=1                             # one process (default: per core)
-    jaxloco push-sweep sweep.mode=random sweep.num_random=256 'sweep.seeds=[0,1]'
-    jaxloco push-sweep hydra.run.dir=outputs/my_sweep        # run again: resumes
+    jaxloco push-sweep                                # limit search (make run; ~10 min, 2 cores)
+    jaxloco push-sweep search=fine                    # 16 directions x 9 phases, 0.1/0.2 s
+    jaxloco push-sweep 'search.durations=[0.1,0.2]' search.rounds=5
+    jaxloco push-sweep address=tcp://head:8786        # on a Dask cluster (shared run dir)
+    jaxloco push-sweep task=grid 'sweep.magnitudes=[300,520,700]' 'sweep.phases=[0.2,0.5,0.8]'
+    jaxloco push-sweep task=grid backend=mjx chunk_size=32   # MJX instead of MuJoCo C
+    jaxloco push-sweep task=grid sweep.mode=random sweep.num_random=256 'sweep.seeds=[0,1]'
+    jaxloco push-sweep workers=1                      # in this process (default: per core)
+    jaxloco push-sweep hydra.run.dir=outputs/my_sweep # run again: resumes
     jaxloco push-sweep gains_file=outputs/tune/tuned_gains.json   # tuned gains and gamma
-    jaxloco sweep-report outputs/my_sweep                    # rebuild the report
+    jaxloco sweep-report outputs/my_sweep             # rebuild a grid sweep's report
 
-Each push starts from a snapshot of the undisturbed walk at its gait phase and runs for
-``sweep.horizon`` seconds; every chunk of ``chunk_size`` pushes is one batched call of the
-chosen physics backend with the same jitted, vmapped walking controller (physics + WBLC +
-learned planner) and is written to ``chunks/`` as soon as it is done. Reports:
-``summary.md``/``.json``, ``success_polar.png``, ``success_vs_phase.png``.
+``task=limits`` (the default) searches, per direction, phase, push duration and replanning
+setting, the largest impulse the controller recovers (bisection with noisy replicas,
+:mod:`jaxloco.sweep.limits`): ``limits.md``/``.json``, ``limits_polar.png``,
+``limits_heatmap.png``. ``task=grid`` runs the pushes of ``sweep`` (every combination of
+its lists): ``summary.md``/``.json``, ``success_polar.png``, ``success_vs_phase.png``.
+
+Each push starts from a snapshot of the undisturbed walk at its gait phase; every chunk of
+``chunk_size`` pushes is one batched call of the chosen physics backend with the same
+jitted, vmapped walking controller (physics + WBLC + learned planner) and is written to
+disk as soon as it is done.
 """
 
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import hydra
 from omegaconf import OmegaConf
@@ -31,6 +40,8 @@ from jaxloco.control.presets import CLOSED_LOOP_QP, walking_config
 from jaxloco.locomotion import GaitParams
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep import SweepSpec, run_sweep, write_report
+from jaxloco.sweep.limits import FINE_SEARCH, LimitSearch, run_limit_search
+from jaxloco.sweep.limits_report import write_limits_report
 
 log = logging.getLogger(__name__)
 
@@ -38,25 +49,38 @@ SweepSchema = config_schema(SweepSpec)
 GaitSchema = config_schema(GaitParams)
 PhysicsSchema = config_schema(PhysicsParams)
 ForceQPSchema = config_schema(ForceQPParams, CLOSED_LOOP_QP)
+SearchSchema = config_schema(LimitSearch)
+FineSearchSchema = config_schema(LimitSearch, FINE_SEARCH)
+TASKS = ("limits", "grid")
 
 
 @dataclass
 class PushSweepConfig(RunConfig):
+    defaults: list[Any] = field(default_factory=lambda: ["_self_", {"search": "default"}])
+    task: str = "limits"
+    """``limits``: the limit search (``search``); ``grid``: the pushes of ``sweep``."""
+    search: Any = None
+    """The limit search (:class:`jaxloco.sweep.limits.LimitSearch`); ``search=fine`` picks
+    the finer preset (``limits.FINE_SEARCH``)."""
     sweep: SweepSchema = field(default_factory=SweepSchema)
+    """The pushes of ``task=grid``."""
     gait: GaitSchema = field(default_factory=GaitSchema)
     physics: PhysicsSchema = field(default_factory=PhysicsSchema)
     force_qp: ForceQPSchema = field(default_factory=ForceQPSchema)
     """The walking WBLC's contact-force QP (defaults: ``presets.CLOSED_LOOP_QP``), e.g.
     ``force_qp.iterations=200``."""
     backend: str = "c"
-    """``c`` (MuJoCo C batch, the CPU default: measured faster here) or ``mjx``."""
+    """``c`` (MuJoCo C batch, the CPU default: measured faster here) or ``mjx`` (grid only)."""
     chunk_size: int = 16
     nthread: int = 0
     """Threads of the C backend (0: all cores); with several workers, each uses one."""
     workers: int = 0
-    """Processes running chunks side by side, each on its own core (C backend; 0: one per
-    core when there is enough work, at least 50 simulated robot-seconds each, else 1). The
-    same results for any number (``jaxloco.sweep.workers``)."""
+    """Local Dask worker processes running chunks side by side, each pinned to its own
+    core (C backend; 0: one per core when there is enough work, at least 50 simulated
+    robot-seconds each, else 1: in this process). The same results for any number."""
+    address: str = ""
+    """A Dask scheduler's address (``tcp://host:8786``): run the chunks on that cluster
+    instead; its workers must see the run directory (a shared file system)."""
     max_chunks: int = 0
     """Stop after this many new chunks (0: run all); run again to go on."""
     pinv_rtol: float = 1e-2
@@ -77,19 +101,17 @@ class PushSweepConfig(RunConfig):
 
 
 register("push_sweep", PushSweepConfig)
+register("default", SearchSchema, group="search")
+register("fine", FineSearchSchema, group="search")
 
 
-def run(cfg, out_dir: Path):
-    """The sweep into ``out_dir`` (resumed if it holds one) and its report."""
-    result = run_sweep(
-        to_params(SweepSpec, cfg.sweep),
-        out_dir,
-        backend=cfg.backend,
-        chunk_size=cfg.chunk_size,
-        gait=apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file),
-        physics=to_params(PhysicsParams, cfg.physics),
-        nthread=cfg.nthread or None,
-        wblc=apply_gains_file(
+def controller_settings(cfg) -> dict:
+    """The walking controller under test: gait, physics and WBLC config (tuned gains
+    applied)."""
+    return {
+        "gait": apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file),
+        "physics": to_params(PhysicsParams, cfg.physics),
+        "wblc": apply_gains_file(
             walking_config(
                 pinv_rtol=cfg.pinv_rtol,
                 whiten_tasks=cfg.whiten_tasks,
@@ -99,17 +121,51 @@ def run(cfg, out_dir: Path):
             ),
             cfg.gains_file,
         ),
-        config=OmegaConf.to_container(cfg, resolve=True),
-        max_chunks=cfg.max_chunks or None,
+    }
+
+
+def run(cfg, out_dir: Path):
+    """The limit search or the grid sweep into ``out_dir`` (resumed if it holds one), and
+    its report."""
+    if cfg.task not in TASKS:
+        raise ValueError(f"task must be one of {TASKS}; got {cfg.task!r}")
+    common = dict(
+        backend=cfg.backend,
+        chunk_size=cfg.chunk_size,
         workers=cfg.workers,
+        address=cfg.address or None,
+        config=OmegaConf.to_container(cfg, resolve=True),
+        **controller_settings(cfg),
     )
-    return {"report": write_report(out_dir, dpi=cfg.dpi), "result": result}
+    if cfg.task == "limits":
+        if cfg.backend != "c":
+            raise ValueError("task=limits runs on the C backend; use backend=c")
+        result = run_limit_search(to_params(LimitSearch, cfg.search), out_dir, **common)
+        return {"task": "limits", "report": write_limits_report(result, out_dir, dpi=cfg.dpi)}
+    result = run_sweep(
+        to_params(SweepSpec, cfg.sweep),
+        out_dir,
+        nthread=cfg.nthread or None,
+        max_chunks=cfg.max_chunks or None,
+        **common,
+    )
+    return {"task": "grid", "report": write_report(out_dir, dpi=cfg.dpi), "result": result}
 
 
 @hydra.main(version_base="1.3", config_path=None, config_name="push_sweep")
 def main(cfg) -> None:
     out, out_dir = run_in_hydra(cfg, run, as_object=False)
-    summary, result = out["report"], out["result"]
+    summary = out["report"]
+    if out["task"] == "limits":
+        for name, v in summary["variants"].items():
+            print(
+                f"{name}: largest recovered impulse median {v['median_limit_Ns']:g} N s "
+                f"(min {v['min_limit_Ns']:g}, max {v['max_limit_Ns']:g}); "
+                f"{v['cells_at_least_paper']}/{v['cells']} cells >= 52 N s"
+            )
+        print(f"report: {out_dir / 'limits.md'} (plots: limits_polar.png, limits_heatmap.png)")
+        return
+    result = out["result"]
     for name, v in summary["variants"].items():
         print(f"{name}: recovered {v['recovered']}/{v['pushes']} ({v['success_rate']:.0%})")
     done = int(result.complete.sum())

@@ -43,9 +43,10 @@ class RunConfig:
     """Resolution of the figures written (dots per inch)."""
 
 
-def register(name: str, node: type) -> None:
-    """Make the config dataclass ``node`` hydra's config ``name``."""
-    ConfigStore.instance().store(name=name, node=node)
+def register(name: str, node: type, group: str | None = None) -> None:
+    """Make the config dataclass ``node`` hydra's config ``name`` (in config group
+    ``group``: an option picked by ``group=name`` on the command line)."""
+    ConfigStore.instance().store(name=name, node=node, group=group)
 
 
 def run_in_hydra(cfg, run: Callable, as_object: bool = True) -> tuple[dict, Path]:

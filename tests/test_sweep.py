@@ -1,5 +1,6 @@
 """Push sweeps: the spec, the store (resume, chunking), the report, and small real sweeps."""
 
+import dataclasses
 import json
 
 import jax
@@ -9,6 +10,7 @@ import pytest
 
 from jaxloco.sweep import SweepSpec, SweepStore, expand, summarize
 from jaxloco.sweep.outcome import FIELDS
+from jaxloco.sweep.store import table_digest
 
 
 def test_spec_rejects_bad_values_naming_the_field():
@@ -53,32 +55,99 @@ def _fake_outcome(n, recovered):
     return out
 
 
+def _manifest(table, **settings):
+    return {
+        "table_digest": table_digest(table),
+        "num_pushes": len(table),
+        "settings": {"backend": "c", "chunk_size": 1, **settings},
+        "runs": [],
+    }
+
+
 def test_store_resumes_and_refuses_another_sweep(tmp_path):
     spec = SweepSpec(directions_deg=(0.0, 90.0), magnitudes=(520.0,), phases=(0.5,), replan=(True,))
     table = expand(spec)
     store = SweepStore(tmp_path)
-    manifest = {"spec_digest": spec.digest(), "chunk_size": 1, "num_pushes": 2, "runs": []}
+    manifest = _manifest(table)
     store.open(manifest, table)
     store.write_chunk(1, np.array([1]), _fake_outcome(1, [True]))
     assert not store.done(0) and store.done(1)
     assert store.open(dict(manifest), table) == manifest  # same sweep: resumes
-    with pytest.raises(ValueError, match="different sweep"):
-        store.open(dict(manifest, spec_digest="x"), table)
+    other_table = expand(dataclasses.replace(spec, magnitudes=(400.0,)))
+    with pytest.raises(ValueError, match="different sweep.*table_digest"):
+        store.open(_manifest(other_table), other_table)
     # Physics, gait and backend decide outcomes too: a run with others is refused, while
     # the same settings resume (tuples compare equal to the lists JSON stored).
     other = tmp_path / "settings"
-    settings = dict(manifest, physics={"torque_limit": 500.0}, gait={"step": (0.1, 0.2)})
+    settings = _manifest(table, physics={"torque_limit": 500.0}, gait={"step": (0.1, 0.2)})
     SweepStore(other).open(settings, table)
     SweepStore(other).open(dict(settings), table)
-    with pytest.raises(ValueError, match="physics"):
-        SweepStore(other).open(dict(settings, physics={"torque_limit": None}), table)
-    with pytest.raises(ValueError, match="backend"):
-        SweepStore(other).open(dict(settings, backend="mjx"), table)
-    with pytest.raises(ValueError, match="wblc_hierarchy"):
-        SweepStore(other).open(dict(settings, wblc_hierarchy={"pinv_rtol": 1e-3}), table)
+    with pytest.raises(ValueError, match="settings"):
+        SweepStore(other).open(_manifest(table, physics={"torque_limit": None}), table)
     _, out, have = store.load_results()
     assert have.tolist() == [False, True] and out["recovered"][1]
     assert not list(tmp_path.glob("chunks/*.tmp*"))
+
+
+def test_the_settings_of_a_job_decide_whether_a_run_directory_is_the_same_sweep(tmp_path):
+    from jaxloco.locomotion import GaitParams
+    from jaxloco.sim.mjx_loop import PhysicsParams
+    from jaxloco.sweep import SweepJob
+
+    job = SweepJob.of(SweepSpec(), tmp_path)
+    # Where it runs and with how many threads does not change outcomes; the rest does.
+    same = job.replace(run_dir="elsewhere", nthread=1, cache_dir="/tmp/c", walks_dir="w")
+    assert same.settings_digest() == job.settings_digest()
+    for changed in (
+        job.replace(physics=PhysicsParams(torque_limit=None)),
+        job.replace(gait=GaitParams(replan_gamma=0.3)),
+        job.replace(backend="mjx"),
+        job.replace(chunk_size=3),
+        job.replace(qvel_noise=0.01),
+        job.replace(x64=True),
+    ):
+        assert changed.settings_digest() != job.settings_digest()
+    with pytest.raises(ValueError, match="SweepJob.backend"):
+        job.replace(backend="gpu")
+    with pytest.raises(ValueError, match="SweepJob.chunk_size"):
+        job.replace(chunk_size=0)
+
+
+def test_a_damaged_chunk_file_is_detected_moved_aside_and_not_used(tmp_path):
+    spec = SweepSpec(directions_deg=(0.0, 90.0), magnitudes=(520.0,), phases=(0.5,), replan=(True,))
+    table = expand(spec)
+    store = SweepStore(tmp_path)
+    store.open(_manifest(table), table)
+    for i in (0, 1):
+        store.write_chunk(i, np.array([i]), _fake_outcome(1, [True]))
+    assert store.done(0, np.array([0])) and store.done(1, np.array([1]))
+    assert not store.done(1, np.array([0]))  # a file holding other rows is not this chunk
+    store.write_chunk(1, np.array([1]), _fake_outcome(1, [True]))
+    # Truncated (a write cut short by hand or by a full disk).
+    path0 = store.chunk_path(0)
+    path0.write_bytes(path0.read_bytes()[:100])
+    # Whole as a zip file, but the content no longer matches its digest.
+    path1 = store.chunk_path(1)
+    with np.load(path1) as f:
+        data = {k: f[k] for k in f.files}
+    data["recovered"] = ~data["recovered"]
+    np.savez(path1, **data)
+    _, out, have = store.load_results()
+    assert have.tolist() == [False, False]
+    assert not store.done(0) and not store.done(1)
+    assert sorted(p.name for p in store.chunks_dir.iterdir()) == [
+        "00000.corrupt.npz",
+        "00001.corrupt.npz",
+    ]
+
+
+def test_a_run_directory_with_chunks_but_no_manifest_is_refused(tmp_path):
+    spec = SweepSpec(directions_deg=(0.0,), magnitudes=(520.0,), phases=(0.5,), replan=(True,))
+    table = expand(spec)
+    (tmp_path / "chunks").mkdir()
+    np.savez(tmp_path / "chunks" / "00000.npz", rows=np.array([0]))
+    with pytest.raises(ValueError, match="no manifest"):
+        SweepStore(tmp_path).open(_manifest(table), table)
 
 
 def test_largest_recovered_impulse_stops_at_the_first_failure():
@@ -131,13 +200,15 @@ def test_paired_comparison_is_mcnemars_exact_test():
 def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, monkeypatch):
     """A real sweep (C backend): two pushes in one chunk of 2, and in chunks of 1 (stopped
     after one chunk, then resumed from the walk kept on disk) give the same outcomes."""
-    import jaxloco.sweep.run as sweep_run
+    import jaxloco.sweep.chunks as sweep_chunks
     from jaxloco.sweep import run_sweep, write_report
 
     walks = []
-    snapshot_walk = sweep_run.snapshot_walk
+    snapshot_walk = sweep_chunks.snapshot_walk
     monkeypatch.setattr(
-        sweep_run, "snapshot_walk", lambda *a, **k: walks.append(a[3:6]) or snapshot_walk(*a, **k)
+        sweep_chunks,
+        "snapshot_walk",
+        lambda *a, **k: walks.append(a[3:6]) or snapshot_walk(*a, **k),
     )
     spec = SweepSpec(**CI_SPEC)
     b = run_sweep(spec, tmp_path / "b", backend="c", chunk_size=2, progress=False)
@@ -164,9 +235,10 @@ def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, 
         np.testing.assert_allclose(a.outcomes[k], b.outcomes[k], rtol=1e-5, err_msg=k)
 
 
-def test_worker_processes_give_the_single_process_outcomes(tmp_path):
-    """Two worker processes (one per core, one chunk each) give the outcomes of one process
-    running the same chunks, bit for bit, and the run is recorded in the manifest."""
+def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path):
+    """Two Dask worker processes (one chunk each) give the outcomes of this process running
+    the same chunks, bit for bit; the run is recorded in the manifest; a damaged chunk file
+    is run again, and a second call with nothing left to do starts no cluster."""
     from jaxloco.sweep import run_sweep
 
     spec = SweepSpec(**CI_SPEC)
@@ -176,11 +248,17 @@ def test_worker_processes_give_the_single_process_outcomes(tmp_path):
     for k in FIELDS:
         np.testing.assert_array_equal(two.outcomes[k], one.outcomes[k], err_msg=k)
     run = two.manifest["runs"][0]
-    assert run["workers"] == 2 and run["chunks"] == [0, 1]
+    assert run["executor"] == "dask" and run["workers"] == 2 and run["chunks"] == [0, 1]
     assert run["overall_env_steps_per_s"] > 0
-    # Nothing left to do: a second call resumes and starts no worker.
     again = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2)
     assert len(again.manifest["runs"]) == 1
+    # A damaged chunk is run again (here in this process), to the same outcomes.
+    path = SweepStore(tmp_path / "two").chunk_path(1)
+    path.write_bytes(b"not a chunk")
+    fixed = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False)
+    assert fixed.manifest["runs"][-1]["chunks"] == [1]
+    for k in FIELDS:
+        np.testing.assert_array_equal(fixed.outcomes[k], one.outcomes[k], err_msg=k)
 
 
 def test_workers_are_validated(tmp_path):

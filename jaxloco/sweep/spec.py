@@ -7,7 +7,7 @@ pushes are drawn uniformly from the ranges the lists span (directions over the c
 row ``i`` is the same push however the sweep is chunked or sharded.
 
 Gait phase: each push starts during the single support of step ``push_step`` of the
-undisturbed walk, at ``phase`` in [0, 1] of it (0: just after lift-off, 1: at touch-down).
+undisturbed walk, at ``phase`` in (0, 1) of it (0: lift-off, 1: the planned touch-down).
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ class SweepSpec:
                 *((name, len(getattr(self, name)) > 0, "a non-empty list") for name in LIST_FIELDS),
                 ("magnitudes", all(m >= 0 for m in self.magnitudes), "values >= 0 (N)"),
                 ("durations", all(d > 0 for d in self.durations), "values > 0 (s)"),
-                ("phases", all(0 <= p <= 1 for p in self.phases), "values in [0, 1]"),
+                ("phases", all(0 < p < 1 for p in self.phases), "values in (0, 1)"),
                 ("apex_speeds", all(x > 0 for x in self.apex_speeds), "values > 0 (m/s)"),
                 ("turns_deg", all(abs(t) <= 45 for t in self.turns_deg), "values in [-45, 45]"),
                 ("seeds", all(int(s) == s and s >= 0 for s in self.seeds), "integers >= 0"),

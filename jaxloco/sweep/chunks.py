@@ -1,0 +1,196 @@
+"""The chunk runner: what every executor calls to run one chunk of a sweep.
+
+:class:`ChunkRunner` is built from a :class:`~jaxloco.sweep.job.SweepJob` in the process
+that runs chunks: it loads the model, builds the walking controller and makes the physics
+backend (whose compiled tick it keeps). :meth:`ChunkRunner.run_chunk` then runs chunk
+``index`` of the push table in a job's run directory, starting each push from a snapshot
+of the undisturbed walk (loaded from the walks folder, or walked once and kept there), and
+writes the chunk's outcomes (:mod:`.store`). The in-process executor and every distributed
+worker run a chunk through this one method, so outcomes do not depend on where a chunk
+ran. One runner serves every job with the same :meth:`~SweepJob.settings_digest` (e.g. the
+rounds of a limit search), whatever its run directory.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import jax
+import numpy as np
+from tqdm.auto import tqdm
+
+from jaxloco.control.presets import walking_config
+from jaxloco.dynamics.model import load_valkyrie
+from jaxloco.locomotion import make_walking_controller
+from jaxloco.sim.mjx_loop import physics_model
+from jaxloco.sim.push import PushArrays, body_index
+from jaxloco.sweep.backends import CBatchBackend, ChunkStarts, MJXBackend
+from jaxloco.sweep.job import SweepJob
+from jaxloco.sweep.outcome import finalize
+from jaxloco.sweep.spec import PushTable
+from jaxloco.sweep.starts import (
+    gather_starts,
+    initial_controller_state,
+    load_snapshots,
+    save_snapshots,
+    snapshot_walk,
+    walk_key,
+)
+from jaxloco.sweep.store import SweepStore
+
+
+def chunk_rows(num_pushes: int, chunk_size: int) -> list[np.ndarray]:
+    """The row indices of every chunk: ``[0, size), [size, 2 size), ...``."""
+    return [np.arange(i, min(i + chunk_size, num_pushes)) for i in range(0, num_pushes, chunk_size)]
+
+
+@dataclasses.dataclass(frozen=True)
+class ChunkReport:
+    """What running one chunk gave (its outcomes are on disk)."""
+
+    index: int
+    pushes: int
+    """Pushes in the chunk (without the padding)."""
+    recovered: int
+    seconds: float
+    """Wall time of the chunk (the first one a runner runs includes the compile)."""
+    env_steps: int
+    """Simulated ticks of the chunk, padding included."""
+
+
+@dataclasses.dataclass
+class _Sweep:
+    """One run directory's push table, as a runner reads it."""
+
+    run_dir: str
+    store: SweepStore
+    table: PushTable
+    chunks: list[np.ndarray]
+
+
+class ChunkRunner:
+    """Runs chunks of sweeps with ``job``'s settings in this process (see the module doc).
+
+    ``make_backend``: False prepares walks only (a driver whose workers run the chunks)."""
+
+    def __init__(self, job: SweepJob, make_backend: bool = True):
+        jax.config.update("jax_enable_x64", job.x64)
+        if job.cache_dir:
+            from jaxloco.runtime import enable_compilation_cache
+
+            enable_compilation_cache(job.cache_dir)
+        self.job = job
+        self.model = load_valkyrie()
+        self.sim_model = physics_model(self.model, job.physics)
+        body = body_index(self.model, job.push_body)
+        self.ctrl = make_walking_controller(
+            self.model, config=job.wblc or walking_config(), gait=job.gait
+        )
+        self.horizon_steps = int(round(job.horizon / self.model.opt.timestep))
+        self.snapshots: dict = {}
+        self._sweep: _Sweep | None = None
+        self.backend = None
+        if make_backend and job.backend == "c":
+            self.backend = CBatchBackend(
+                self.sim_model, self.ctrl, body, job.fall_height, job.nthread
+            )
+        elif make_backend:
+            self.backend = MJXBackend(
+                self.sim_model, self.ctrl, body, job.fall_height, self.horizon_steps
+            )
+
+    def sweep(self, job: SweepJob) -> _Sweep:
+        """The push table and chunks of ``job``'s run directory."""
+        if job.settings_digest() != self.job.settings_digest():
+            raise ValueError("ChunkRunner: a job with other settings needs its own runner")
+        if self._sweep is None or self._sweep.run_dir != job.run_dir:
+            store = SweepStore(job.run_dir, writer=jax.process_index() == 0)
+            table = store.load_table()
+            self._sweep = _Sweep(job.run_dir, store, table, chunk_rows(len(table), job.chunk_size))
+        return self._sweep
+
+    def prepare_walks(self, job: SweepJob, chunks, progress: bool = False) -> float:
+        """Load or walk the undisturbed walks that ``chunks`` of ``job`` start from;
+        returns the seconds it took."""
+        t0 = time.perf_counter()
+        sweep = self.sweep(job)
+        self._add_walks(job, sweep, [sweep.chunks[i] for i in chunks], progress)
+        return time.perf_counter() - t0
+
+    def _add_walks(self, job: SweepJob, sweep: _Sweep, row_groups, progress=False) -> None:
+        """The undisturbed walks the rows need: one per (speed, turn, replan), snapshotted
+        at every phase the table asks of it and kept in the walks folder, so that no
+        process walks one twice (a walk does not depend on which phases it stops at). A
+        kept walk lacking a phase the table asks for is walked again with every phase."""
+        table = sweep.table
+        keys = [
+            walk_key(table["apex_speed"][r], table["turn_deg"][r], table["replan"][r])
+            for r in range(len(table))
+        ]
+        wanted = {}
+        for key in sorted({keys[r] for rows in row_groups for r in rows}):
+            phases = set(np.unique(table["phase"][[k == key for k in keys]]).tolist())
+            have = self.snapshots.get(key)
+            if have is None or not phases <= set(have.phases.tolist()):
+                wanted[key] = phases
+        step_fn = None
+        for key, phases in tqdm(wanted.items(), "undisturbed walks", disable=not progress):
+            path = job.walk_path(key)
+            if path.exists():
+                template = initial_controller_state(self.ctrl, self.sim_model, *key)
+                kept = load_snapshots(path, template)
+                if phases <= set(kept.phases.tolist()):
+                    self.snapshots[key] = kept
+                    continue
+                phases |= set(kept.phases.tolist())
+            step_fn = step_fn or jax.jit(self.ctrl.step)
+            self.snapshots[key] = snapshot_walk(
+                self.sim_model, self.ctrl, step_fn, *key, job.push_step, sorted(phases),
+                job.fall_height,
+            )  # fmt: skip
+            if sweep.store.writer:
+                path.parent.mkdir(parents=True, exist_ok=True)
+                save_snapshots(path, self.snapshots[key])
+
+    def starts(self, job: SweepJob, index: int) -> ChunkStarts:
+        """The start states of chunk ``index`` of ``job``, padded to ``chunk_size`` with
+        its last push."""
+        sweep = self.sweep(job)
+        rows = sweep.chunks[index]
+        self._add_walks(job, sweep, [rows])
+        table, model = sweep.table, self.model
+        padded = np.concatenate([rows, np.full(job.chunk_size - len(rows), rows[-1])])
+        times, phys, cstate = gather_starts(
+            table, padded, self.snapshots, job.qvel_noise, model.nq, model.nv
+        )
+        heading = np.asarray(cstate.gait.heading, float)
+        pushes = PushArrays(
+            magnitude=table["magnitude"][padded],
+            direction=heading + np.radians(table["direction_deg"][padded]),
+            start=times,
+            duration=table["duration"][padded],
+        )
+        return ChunkStarts(times, phys, cstate, pushes)
+
+    def run_chunk(self, job: SweepJob, index: int, tick_progress=None) -> ChunkReport:
+        """Run chunk ``index`` of ``job`` and write its outcomes to its run directory."""
+        t0 = time.perf_counter()
+        sweep = self.sweep(job)
+        rows = sweep.chunks[index]
+        outcome = self.backend.run(self.starts(job, index), self.horizon_steps, tick_progress)
+        cols = finalize(outcome, job.steps_after)
+        cols = {k: v[: len(rows)] for k, v in cols.items()}
+        sweep.store.write_chunk(index, rows, cols)
+        return ChunkReport(
+            index=index,
+            pushes=len(rows),
+            recovered=int(cols["recovered"].sum()),
+            seconds=time.perf_counter() - t0,
+            env_steps=job.chunk_size * self.horizon_steps,
+        )
+
+    def warm_up(self, job: SweepJob, index: int) -> None:
+        """One tick of chunk ``index``, results discarded: puts the compiled tick into the
+        persistent cache, so that workers load it instead of compiling it."""
+        self.backend.run(self.starts(job, index), 1)

@@ -1,0 +1,149 @@
+"""The limit search: bisection of the largest recovered impulse, its checks, and a real
+CI-sized search on MuJoCo C through the CLI (resumed, reported)."""
+
+import json
+
+import numpy as np
+import pytest
+from cli_helpers import run_cli
+
+from jaxloco.sweep.limits import LimitSearch, round_table, search_limits
+
+SMALL = dict(
+    directions_deg=(0.0, 90.0, 180.0),
+    phases=(0.3, 0.7),
+    durations=(0.1, 0.2),
+    replan=(True, False),
+    impulse_range=(0.0, 128.0),
+    rounds=5,
+    replicas=5,
+    min_recovered=4,
+)
+
+
+@pytest.mark.parametrize(
+    "field, value, message",
+    [
+        ("directions_deg", (), "a non-empty list"),
+        ("phases", (0.0, 0.5), r"values in \(0, 1\)"),
+        ("phases", (0.5, 1.0), r"values in \(0, 1\)"),
+        ("durations", (0.0,), "values > 0"),
+        ("impulse_range", (40.0, 40.0), "0 <= low < high"),
+        ("impulse_range", (-10.0, 40.0), "0 <= low < high"),
+        ("impulse_range", (10.0,), "0 <= low < high"),
+        ("rounds", 0, ">= 1"),
+        ("min_recovered", 6, r"\[1, replicas = 5\]"),
+        ("qvel_noise", -0.1, ">= 0"),
+    ],
+)
+def test_a_bad_search_names_the_field_and_the_valid_range(field, value, message):
+    with pytest.raises(ValueError, match=rf"LimitSearch\.{field} must be .*{message}"):
+        LimitSearch(**{field: value})
+
+
+def test_a_round_tests_each_cell_with_its_replicas():
+    search = LimitSearch(**SMALL)
+    impulses = np.arange(len(search.cells()), dtype=float) + 10.0
+    table = round_table(search, impulses)
+    assert len(table) == len(search.cells()) * 5
+    impulse = table["magnitude"] * table["duration"]
+    np.testing.assert_allclose(impulse, np.repeat(impulses, 5))
+    assert table["seed"].tolist()[:6] == [1, 2, 3, 4, 5, 1]  # one noise draw per replica
+
+
+def _robot(true_limits, flaky=None):
+    """A stand-in for the sweep: a push is recovered when its impulse is at most its cell's
+    limit; ``flaky`` cells recover only 3 of 5 replicas just under their limit."""
+
+    def run_round(table, round_dir, walks_dir):
+        round_dir.mkdir(parents=True, exist_ok=True)
+        impulse = table["magnitude"] * table["duration"]
+        limit = np.repeat(true_limits, 5)
+        ok = impulse <= limit
+        if flaky is not None:
+            lucky = np.tile([True, True, True, False, False], len(true_limits))
+            ok &= ~np.repeat(flaky, 5) | lucky
+        return ok
+
+    return run_round
+
+
+def test_bisection_brackets_every_cells_limit_at_the_final_resolution(tmp_path):
+    search = LimitSearch(**SMALL)
+    n = len(search.cells())
+    rng = np.random.default_rng(0)
+    true = rng.uniform(8.0, 120.0, n)
+    true[0], true[1] = 500.0, 1.0  # past the range; under the first impulse tried
+    flaky = np.zeros(n, bool)
+    flaky[2] = True
+    res = search_limits(search, tmp_path, _robot(true, flaky), progress=False)
+    lo, hi = res.brackets.lo, res.brackets.hi
+    assert np.allclose(hi - lo, search.resolution()) and search.resolution() == 4.0
+    ok = ~flaky
+    assert np.all((lo[ok] <= true[ok]) & (true[ok] < hi[ok]) | res.censored_above[ok])
+    # 3 of 5 is below min_recovered: the flaky cell never counts as recovered.
+    assert res.limit[2] == 0.0 and res.censored_below[2]
+    assert res.censored_above[0] and res.limit[0] == 124.0
+    assert res.censored_below[1] and res.limit[1] == 0.0
+    assert not (res.censored_above[3:] | res.censored_below[3:]).any()
+    # Every smaller impulse tested in a cell was recovered (the bisection only tests above lo).
+    for k in range(n):
+        below = res.tested[:, k] <= res.limit[k]
+        assert np.all(res.recovered[below, k] >= 4)
+    s = res.summary()
+    assert s["pushes_run"] == 5 * n * 5 and len(s["cells"]) == n
+    assert set(s["variants"]) == {"replan, 0.1 s", "replan, 0.2 s", "no_replan, 0.1 s",
+                                  "no_replan, 0.2 s"}  # fmt: skip
+    json.dumps(s)  # every number JSON-ready
+
+
+def test_a_run_directory_holds_one_search(tmp_path):
+    search = LimitSearch(**SMALL)
+    n = len(search.cells())
+    search_limits(search, tmp_path, _robot(np.full(n, 50.0)), progress=False)
+    search_limits(search, tmp_path, _robot(np.full(n, 50.0)), progress=False)  # resumes
+    with pytest.raises(ValueError, match="another limit search.*rounds"):
+        search_limits(LimitSearch(**dict(SMALL, rounds=3)), tmp_path, _robot(None))
+    (tmp_path / "other" / "round_00").mkdir(parents=True)
+    with pytest.raises(ValueError, match="unknown search"):
+        search_limits(search, tmp_path / "other", _robot(None))
+
+
+CI_SEARCH = [
+    "search.directions_deg=[0.0]",
+    "search.phases=[0.5]",
+    "search.replan=[true]",
+    "search.impulse_range=[0,40]",
+    "search.rounds=2",
+    "search.replicas=2",
+    "search.min_recovered=1",
+    "search.push_step=1",
+    "search.horizon=0.8",
+    "search.steps_after=1",
+    "workers=1",
+    "chunk_size=2",
+]
+
+
+def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path):
+    """`jaxloco push-sweep` with a CI-sized search: 2 rounds of 2 replicas (20 N s
+    recovered, as in the CI sweep, so the second round tests 30 N s); the report has every
+    number and both plots; the same command again runs nothing and reports the same."""
+    proc = run_cli(["push-sweep", *CI_SEARCH], tmp_path, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    summary = json.loads((run / "limits.json").read_text())
+    cell = summary["cells"][0]
+    assert cell["tested_Ns"] == [20.0, 30.0]
+    assert cell["recovered_replicas"][0] == 2
+    assert cell["limit_Ns"] in (20.0, 30.0) and cell["bracket_Ns"][1] - cell["bracket_Ns"][0] == 10
+    for name in ("limits_polar.png", "limits_heatmap.png", "limits.md"):
+        assert (run / name).stat().st_size > 0
+    manifest = json.loads((run / "round_00" / "manifest.json").read_text())
+    assert len(manifest["runs"]) == 1 and manifest["limit_search"]["rounds"] == 2
+    assert sorted(p.name for p in (run / "walks").iterdir()) == ["1.0_0.0_1.npz"]
+    again = run_cli(["push-sweep", *CI_SEARCH], tmp_path, timeout=900)
+    assert again.returncode == 0, again.stderr[-3000:]
+    manifest = json.loads((run / "round_01" / "manifest.json").read_text())
+    assert len(manifest["runs"]) == 1  # nothing ran twice
+    assert json.loads((run / "limits.json").read_text())["cells"] == summary["cells"]
