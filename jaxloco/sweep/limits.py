@@ -9,7 +9,10 @@ largest impulse the walking controller recovers, by bisection over the impulse:
   ``replicas`` runs from the undisturbed walk's state plus small joint-velocity noise
   (``qvel_noise``, a new draw per run), so one lucky run does not set the limit;
 - the impulse counts as recovered when at least ``min_recovered`` of the replicas are
-  (then ``lo`` moves up to it), else ``hi`` moves down to it;
+  (then ``lo`` moves up to it), else ``hi`` moves down to it. A round runs all replicas
+  but the last first, and the last only for the cells they leave undecided (exactly
+  ``min_recovered - 1`` recovered): the decisions are those of running every replica, at
+  fewer runs;
 - after ``rounds`` rounds the cell's **limit** is ``lo``: the largest impulse tested that
   was recovered, every smaller impulse tested in that cell having been recovered too (the
   bisection only tests above ``lo``). Its resolution is the final bracket's width,
@@ -20,8 +23,9 @@ The bracket's ends are assumed, not tested: a cell that recovered every impulse 
 recovered none is **censored below** (its limit is under the first impulse tried); the
 result says which. The push's force is the impulse over its duration.
 
-Each round is one sweep (:func:`~jaxloco.sweep.run.run_table`) into ``run_dir/round_NN``,
-all rounds sharing one folder of undisturbed walks; a round's pushes follow from the
+Each round is one or two sweeps (:func:`~jaxloco.sweep.run.run_table`) into
+``run_dir/round_NN`` and ``run_dir/round_NN_last``, all sharing one folder of undisturbed
+walks; a round's pushes follow from the
 earlier rounds' outcomes on disk, so running the same search again resumes where it
 stopped, and its results do not depend on where the chunks ran.
 """
@@ -47,7 +51,8 @@ PAPER_IMPULSE = 52.0
 @dataclasses.dataclass(frozen=True)
 class LimitSearch:
     """The cells searched and how (see the module doc). The defaults are ``make run``'s:
-    8 directions x 5 phases x replanning on and off, 4 rounds of 5 replicas (1,600 pushes)."""
+    8 directions x 5 phases x replanning on and off, 4 rounds of up to 5 replicas (at most
+    1,600 pushes; resolution 8 N s)."""
 
     directions_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0)
     """Where the force points in the walking frame at the push (0: forward, i.e. a push
@@ -59,8 +64,8 @@ class LimitSearch:
     """Push durations (s); a cell per duration (e.g. ``[0.1, 0.2]``)."""
     replan: tuple[bool, ...] = (True, False)
     """Eq. 33-34 replanning on / off."""
-    impulse_range: tuple[float, float] = (0.0, 104.0)
-    """The bisection's initial bracket (N s): its middle, 52, is the paper's push."""
+    impulse_range: tuple[float, float] = (0.0, 128.0)
+    """The bisection's initial bracket (N s), over twice the paper's 52."""
     rounds: int = 4
     """Bisection rounds: the limit's resolution is the range over ``2**rounds``."""
     replicas: int = 5
@@ -178,13 +183,18 @@ class Brackets:
         )
 
 
-def round_table(search: LimitSearch, impulses: np.ndarray) -> PushTable:
-    """The pushes of one round: each cell at its impulse (N s), ``replicas`` rows each
-    (seeds 1..replicas: every row its own noise draw)."""
+def round_table(search: LimitSearch, impulses: np.ndarray, cells=None, seeds=None) -> PushTable:
+    """The pushes of (a stage of) one round: each of ``cells`` (indices; default all) at its
+    impulse (N s, one per cell of the search), one row per replica seed in ``seeds``
+    (default ``1..replicas``; the noise draw also depends on the row)."""
+    all_cells = search.cells()
+    cells = range(len(all_cells)) if cells is None else cells
+    seeds = range(1, search.replicas + 1) if seeds is None else seeds
     rows = [
-        (d, impulse / t, t, p, r, seed)
-        for (d, p, t, r), impulse in zip(search.cells(), impulses, strict=True)
-        for seed in range(1, search.replicas + 1)
+        (d, impulses[c] / t, t, p, r, seed)
+        for c in cells
+        for d, p, t, r in [all_cells[c]]
+        for seed in seeds
     ]
     n = len(rows)
     cols = list(zip(*rows, strict=True))
@@ -214,6 +224,9 @@ class LimitResult:
     """(rounds, C) impulse tested in each round (N s)."""
     recovered: np.ndarray
     """(rounds, C) replicas recovered in each round."""
+    runs: np.ndarray
+    """(rounds, C) replicas run in each round (the last only where the others left the
+    decision open)."""
     rounds_done: int
     """Rounds with results for every cell (< ``search.rounds``: the search was stopped)."""
 
@@ -250,6 +263,7 @@ class LimitResult:
                     "at_least_paper": bool(self.limit[k] >= PAPER_IMPULSE),
                     "tested_Ns": self.tested[: self.rounds_done, k].tolist(),
                     "recovered_replicas": self.recovered[: self.rounds_done, k].tolist(),
+                    "replicas_run": self.runs[: self.rounds_done, k].tolist(),
                 }
             )
         variants = {}
@@ -278,7 +292,7 @@ class LimitResult:
                 "paper_impulse_Ns": PAPER_IMPULSE,
                 "resolution_Ns": s.resolution(),
                 "rounds_done": self.rounds_done,
-                "pushes_run": int(self.rounds_done * len(self.cells) * s.replicas),
+                "pushes_run": int(self.runs[: self.rounds_done].sum()),
                 "variants": variants,
                 "cells": rows,
             }
@@ -292,7 +306,7 @@ def search_limits(
     progress: bool = True,
 ) -> LimitResult:
     """Run (or resume) ``search`` into ``run_dir``. ``run_round(table, round_dir,
-    walks_dir) -> outcomes`` runs one round's pushes (a
+    walks_dir) -> outcomes`` runs the pushes of a stage of a round (a
     :func:`~jaxloco.sweep.run.run_table` call: the ``recovered`` column, one entry per
     row, every row done)."""
     run_dir = Path(run_dir)
@@ -302,18 +316,32 @@ def search_limits(
     brackets = Brackets.start(search)
     tested = np.full((search.rounds, len(cells)), np.nan)
     recovered = np.zeros((search.rounds, len(cells)), int)
-    for r in range(search.rounds):
-        impulses = brackets.middle()
-        table = round_table(search, impulses)
-        if progress:
-            print(f"limit search: round {r + 1} of {search.rounds}", flush=True)
-        ok = np.asarray(run_round(table, run_dir / f"round_{r:02d}", run_dir / "walks"), bool)
+    runs = np.zeros((search.rounds, len(cells)), int)
+    n, m = search.replicas, search.min_recovered
+    walks = run_dir / "walks"
+
+    def stage(impulses, which, seeds, name):
+        table = round_table(search, impulses, which, seeds)
+        ok = np.asarray(run_round(table, run_dir / name, walks), bool)
         if ok.shape != (len(table),):
             raise ValueError(f"run_round gave {ok.shape} outcomes for {len(table)} pushes")
-        counts = ok.reshape(len(cells), search.replicas).sum(axis=1)
-        tested[r], recovered[r] = impulses, counts
-        brackets = brackets.update(impulses, counts >= search.min_recovered)
-    return LimitResult(search, cells, brackets, tested, recovered, search.rounds)
+        return ok.reshape(len(which), len(seeds)).sum(axis=1)
+
+    for r in range(search.rounds):
+        impulses = brackets.middle()
+        if progress:
+            print(f"limit search: round {r + 1} of {search.rounds}", flush=True)
+        first = range(1, n) if n > 1 else range(1, 2)
+        everyone = np.arange(len(cells))
+        recovered[r] = stage(impulses, everyone, first, f"round_{r:02d}")
+        runs[r] = len(first)
+        open_ = everyone[recovered[r] == m - 1] if n > 1 else everyone[:0]
+        if len(open_):
+            recovered[r, open_] += stage(impulses, open_, range(n, n + 1), f"round_{r:02d}_last")
+            runs[r, open_] += 1
+        tested[r] = impulses
+        brackets = brackets.update(impulses, recovered[r] >= m)
+    return LimitResult(search, cells, brackets, tested, recovered, runs, search.rounds)
 
 
 def _check_run_dir(search: LimitSearch, run_dir: Path) -> None:
