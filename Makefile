@@ -20,10 +20,10 @@ $(STAMP): pyproject.toml constraints.txt
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[dev]"
 	@touch $(STAMP)
 
-# The main job on embedded defaults: a push-recovery sweep (8 directions x 2 impulses x
-# 2 gait phases, replanning on and off; about 2 min on 2 cores once .venv is installed).
-# Outputs and the report land in hydra's run directory under outputs/; running it again
-# there resumes.
+# The main job on embedded defaults: the limit search (the largest recovered impulse for
+# 8 directions x 5 gait phases, replanning on and off; FRESH_TIME on 2 cores from a fresh
+# clone, .venv and compile cache included). Outputs and the report land in hydra's run
+# directory under outputs/; running it again there resumes.
 run: $(STAMP)
 	$(BIN)/jaxloco push-sweep
 

@@ -7,9 +7,10 @@
    second starts from the cache (what a user sees re-running a sweep). Wall time of each,
    and closed-loop env-steps/s over the steady chunks (from the manifest).
 
-   - **The default sweep** (``make run``: 64 pushes, chunks of 16, 2 worker processes, one
-     per core; ``--quick``: its 0.5 s horizon only): each worker runs two chunks, and the
-     rate is over the second ones, side by side.
+   - **The default sweep** (``SweepSpec()``, ``jaxloco push-sweep task=grid``: 64 pushes,
+     chunks of 16, 2 Dask worker processes, one per core; ``--quick``: its 0.5 s horizon
+     only): each worker runs two chunks, and the rate is over the second ones, side by
+     side.
    - A small sweep of 520 N pushes (8 directions, one gait phase, 1 s; ``--quick``: 2
      directions, 0.3 s) in two chunks, on the C backend in one process and on MJX. Its
      "recovered" is only "standing at the end of the horizon" (``steps_after=0``): a speed
@@ -74,7 +75,7 @@ def sweep_spec(quick: bool) -> SweepSpec:
 
 
 def default_sweep_spec(quick: bool) -> SweepSpec:
-    """The sweep ``make run`` runs (``--quick``: its grid over a 0.5 s horizon)."""
+    """The default grid sweep, ``SweepSpec()`` (``--quick``: over a 0.5 s horizon)."""
     return SweepSpec(horizon=0.5, steps_after=0) if quick else SweepSpec()
 
 
@@ -206,7 +207,7 @@ def main() -> None:
         )
     tables = [None, None]
     tables[0] = print_table(
-        "Push sweeps: the default one (make run) and a small one in 2 chunks; two runs each "
+        "Push sweeps: the default grid (64 pushes) and a small one in 2 chunks; two runs each "
         "with one fresh XLA cache; baseline = physics alone in the same run",
         table_rows,
         [

@@ -235,15 +235,48 @@ def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, 
         np.testing.assert_allclose(a.outcomes[k], b.outcomes[k], rtol=1e-5, err_msg=k)
 
 
+def _kill_a_worker_once_chunks_start(run_dir, killed):
+    """Kill one of this process's Dask worker processes (SIGKILL) once the sweep in
+    ``run_dir`` has its walks, i.e. while the workers run chunks."""
+    import os
+    import signal
+    import time
+
+    import psutil
+
+    deadline = time.time() + 600
+    while time.time() < deadline and not list((run_dir / "walks").glob("*.npz")):
+        time.sleep(0.2)
+    time.sleep(1.0)
+    workers = [
+        p
+        for p in psutil.Process().children(recursive=True)
+        if "spawn_main" in " ".join(p.cmdline())
+    ]
+    if workers:
+        os.kill(workers[0].pid, signal.SIGKILL)
+        killed.append(workers[0].pid)
+
+
 def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path):
     """Two Dask worker processes (one chunk each) give the outcomes of this process running
-    the same chunks, bit for bit; the run is recorded in the manifest; a damaged chunk file
-    is run again, and a second call with nothing left to do starts no cluster."""
+    the same chunks, bit for bit, even with one worker killed while chunks run (its task
+    runs again); the run is recorded in the manifest; a damaged chunk file is run again,
+    and a second call with nothing left to do starts no cluster."""
+    import threading
+
     from jaxloco.sweep import run_sweep
 
     spec = SweepSpec(**CI_SPEC)
     one = run_sweep(spec, tmp_path / "one", backend="c", chunk_size=1, progress=False)
+    killed = []
+    killer = threading.Thread(
+        target=_kill_a_worker_once_chunks_start, args=(tmp_path / "two", killed), daemon=True
+    )
+    killer.start()
     two = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2)
+    killer.join(timeout=5)
+    assert killed, "no worker process was found to kill"
     assert two.complete.all()
     for k in FIELDS:
         np.testing.assert_array_equal(two.outcomes[k], one.outcomes[k], err_msg=k)

@@ -17,11 +17,12 @@ import dataclasses
 import time
 
 import jax
+import mujoco
 import numpy as np
 from tqdm.auto import tqdm
 
 from jaxloco.control.presets import walking_config
-from jaxloco.dynamics.model import load_valkyrie
+from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.locomotion import make_walking_controller
 from jaxloco.sim.mjx_loop import physics_model
 from jaxloco.sim.push import PushArrays, body_index
@@ -30,6 +31,7 @@ from jaxloco.sweep.job import SweepJob
 from jaxloco.sweep.outcome import finalize
 from jaxloco.sweep.spec import PushTable
 from jaxloco.sweep.starts import (
+    STATE_SPEC,
     gather_starts,
     initial_controller_state,
     load_snapshots,
@@ -90,6 +92,8 @@ class ChunkRunner:
         self.horizon_steps = int(round(job.horizon / self.model.opt.timestep))
         self.snapshots: dict = {}
         self._sweep: _Sweep | None = None
+        self.warm = False
+        """Whether :meth:`warm_up` ran (a worker compiles once)."""
         self.backend = None
         if make_backend and job.backend == "c":
             self.backend = CBatchBackend(
@@ -190,7 +194,25 @@ class ChunkRunner:
             env_steps=job.chunk_size * self.horizon_steps,
         )
 
-    def warm_up(self, job: SweepJob, index: int) -> None:
-        """One tick of chunk ``index``, results discarded: puts the compiled tick into the
-        persistent cache, so that workers load it instead of compiling it."""
-        self.backend.run(self.starts(job, index), 1)
+    def warm_up(self) -> float:
+        """Compile the backend's chunk program now, before any walk exists: one tick of
+        ``chunk_size`` robots standing at the walking keyframe (the shapes and dtypes of
+        every chunk), results discarded. Returns the seconds it took."""
+        t0 = time.perf_counter()
+        n, model = self.job.chunk_size, self.sim_model
+        data = mujoco.MjData(model)
+        data.qpos[:] = keyframe_qpos(model, "walk")
+        mujoco.mj_forward(model, data)
+        state = np.zeros(mujoco.mj_stateSize(model, STATE_SPEC))
+        mujoco.mj_getState(model, data, state, STATE_SPEC)
+        cstate = initial_controller_state(self.ctrl, model, 1.0, 0.0, True)
+        starts = ChunkStarts(
+            times=np.zeros(n),
+            physics=np.tile(state, (n, 1)),
+            controller=jax.tree.map(lambda x: np.repeat(np.asarray(x)[None], n, axis=0), cstate),
+            pushes=PushArrays.none((n,)),
+        )
+        steps = 1 if self.job.backend == "c" else self.horizon_steps
+        self.backend.run(starts, steps)
+        self.warm = True
+        return time.perf_counter() - t0

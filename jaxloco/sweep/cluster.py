@@ -6,10 +6,11 @@ cluster given by its scheduler's address, its workers are restarted by their nan
 they die and their tasks retried elsewhere, and ``dask-jobqueue`` starts workers on SLURM,
 PBS or SGE when a cluster has a batch scheduler.
 
-Each chunk is one task (:func:`run_chunk_task`). A worker builds one runner per sweep and
-keeps it between tasks (:class:`SweepWorkerPlugin`; building it loads the model, the walks
-and the compiled tick), and writes each chunk's file into the run directory itself, so
-the driver only waits. If a worker dies, its task runs again on another; if the driver
+Each chunk is one task (:func:`run_chunk_task`). A worker builds one runner per set of
+settings and keeps it between tasks and sweeps (:class:`SweepWorkerPlugin`); it compiles
+its chunk program while the driver walks the undisturbed walks (:func:`warm_up_task`),
+loads the walks from the run directory, and writes each chunk's file there itself, so the
+driver only waits. If a worker dies, its task runs again on another; if the driver
 dies, running the same command again resumes from the chunk files. On one machine
 :func:`local_cluster` starts one single-threaded worker process per core, each pinned to
 its core (the batched tick keeps one core busy, so pinned processes do the most work); on
@@ -24,7 +25,7 @@ import hashlib
 import time
 from collections.abc import Sequence
 
-from distributed import Client, LocalCluster, as_completed, get_worker
+from distributed import Client, LocalCluster, as_completed, get_worker, wait
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from jaxloco.sweep.chunks import ChunkReport, ChunkRunner
@@ -59,14 +60,24 @@ class SweepWorkerPlugin(WorkerPlugin):
         return self.runners[key]
 
 
-def run_chunk_task(job: SweepJob, index: int) -> ChunkReport:
-    """The task of chunk ``index``: run it on this worker's runner and write it."""
-    worker = get_worker()
-    plugin = worker.plugins.get(PLUGIN_NAME)
+def _runner(job: SweepJob) -> ChunkRunner:
+    plugin = get_worker().plugins.get(PLUGIN_NAME)
     if plugin is None:  # not registered on this worker: run without keeping the runner
         plugin = SweepWorkerPlugin()
+    return plugin.runner(job)
+
+
+def run_chunk_task(job: SweepJob, index: int) -> ChunkReport:
+    """The task of chunk ``index``: run it on this worker's runner and write it."""
     job = job.replace(nthread=1)
-    return plugin.runner(job).run_chunk(job, index)
+    return _runner(job).run_chunk(job, index)
+
+
+def warm_up_task(job: SweepJob) -> float:
+    """Build this worker's runner and compile its chunk program (while the driver walks);
+    returns the seconds the compile took (0: the runner was warm)."""
+    runner = _runner(job.replace(nthread=1))
+    return 0.0 if runner.warm else runner.warm_up()
 
 
 def local_cluster(workers: int) -> LocalCluster:
@@ -106,14 +117,21 @@ def run_on_dask(
 ) -> dict:
     """Run the chunks ``todo`` of ``job`` as tasks on ``client``'s cluster
     (:func:`dask_client`). Returns the run's record for the manifest. ``driver``: a
-    runner of this process to reuse (it walks the undisturbed walks and, with a persistent
-    compile cache, compiles the tick into it, for the workers to load)."""
+    runner of this process to reuse; it walks the undisturbed walks (kept in the run
+    directory for the workers) while every worker builds its runner and compiles its
+    chunk program."""
     t_start = time.perf_counter()
-    driver = driver or ChunkRunner(job, make_backend=bool(job.cache_dir))
+    workers = list(client.scheduler_info()["workers"])
+    # One warm-up per worker (loosely bound: a worker that dies meanwhile does not hold
+    # the run up; its replacement compiles on its first chunk instead).
+    warming = [
+        client.submit(warm_up_task, job, workers=[w], allow_other_workers=True, pure=False)
+        for w in workers
+    ]
+    driver = driver or ChunkRunner(job, make_backend=False)
     walks_s = driver.prepare_walks(job, todo, progress)
-    if job.cache_dir and driver.backend is not None:
-        driver.warm_up(job, todo[0])
-    n_workers = len(client.scheduler_info()["workers"])
+    wait(warming)
+    n_workers = len(workers)
     t_tasks = time.perf_counter()
     tag = hashlib.sha256(job.run_dir.encode()).hexdigest()[:8]
     futures = [

@@ -45,9 +45,9 @@ LIST_FIELDS = (
 
 @dataclasses.dataclass(frozen=True)
 class SweepSpec:
-    """A push sweep. The defaults are ``make run``'s: 8 directions x 2 impulses (26 and
-    52 N s, the paper's 520 N x 0.1 s) x 2 phases of step 4's single support, replanning
-    on and off: 64 pushes, about 10 minutes on 2 CPU cores with the C backend."""
+    """A push sweep (``jaxloco push-sweep task=grid``). The defaults: 8 directions x 2
+    impulses (26 and 52 N s, the paper's 520 N x 0.1 s) x 2 phases of step 4's single
+    support, replanning on and off: 64 pushes."""
 
     directions_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0)
     """Where the force points in the walking frame at the push (0: forward, i.e. a push
