@@ -14,7 +14,7 @@
 
 ``task=limits`` (the default) searches, per direction, phase, push duration and replanning
 setting, the largest impulse the controller recovers (bisection with noisy replicas,
-:mod:`jaxloco.sweep.limits`): ``limits.md``/``.json``, ``limits_polar.png``,
+:mod:`jaxloco.sweep.limits`): ``summary.md``/``.json``, ``limits_polar.png``,
 ``limits_heatmap.png``. ``task=grid`` runs the pushes of ``sweep`` (every combination of
 its lists): ``summary.md``/``.json``, ``success_polar.png``, ``success_vs_phase.png``.
 
@@ -163,7 +163,7 @@ def main(cfg) -> None:
                 f"(min {v['min_limit_Ns']:g}, max {v['max_limit_Ns']:g}); "
                 f"{v['cells_at_least_paper']}/{v['cells']} cells >= 52 N s"
             )
-        print(f"report: {out_dir / 'limits.md'} (plots: limits_polar.png, limits_heatmap.png)")
+        print(f"report: {out_dir / 'summary.md'} (plots: limits_polar.png, limits_heatmap.png)")
         return
     result = out["result"]
     for name, v in summary["variants"].items():

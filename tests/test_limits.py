@@ -143,13 +143,13 @@ def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path):
     proc = run_cli(["push-sweep", *CI_SEARCH], tmp_path, timeout=900)
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = tmp_path / "run"
-    summary = json.loads((run / "limits.json").read_text())
+    summary = json.loads((run / "summary.json").read_text())
     cell = summary["cells"][0]
     assert cell["tested_Ns"] == [20.0, 30.0]
     assert cell["recovered_replicas"][0] == 1 and cell["replicas_run"][0] == 1
     assert not (run / "round_00_last").exists()
     assert cell["limit_Ns"] in (20.0, 30.0) and cell["bracket_Ns"][1] - cell["bracket_Ns"][0] == 10
-    for name in ("limits_polar.png", "limits_heatmap.png", "limits.md"):
+    for name in ("limits_polar.png", "limits_heatmap.png", "summary.md"):
         assert (run / name).stat().st_size > 0
     manifest = json.loads((run / "round_00" / "manifest.json").read_text())
     assert len(manifest["runs"]) == 1 and manifest["limit_search"]["rounds"] == 2
@@ -158,4 +158,4 @@ def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path):
     assert again.returncode == 0, again.stderr[-3000:]
     manifest = json.loads((run / "round_01" / "manifest.json").read_text())
     assert len(manifest["runs"]) == 1  # nothing ran twice
-    assert json.loads((run / "limits.json").read_text())["cells"] == summary["cells"]
+    assert json.loads((run / "summary.json").read_text())["cells"] == summary["cells"]

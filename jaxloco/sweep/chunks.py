@@ -34,6 +34,7 @@ from jaxloco.sweep.starts import (
     STATE_SPEC,
     gather_starts,
     initial_controller_state,
+    kept_phases,
     load_snapshots,
     save_snapshots,
     snapshot_walk,
@@ -71,10 +72,32 @@ class _Sweep:
     chunks: list[np.ndarray]
 
 
+def load_sweep(job: SweepJob) -> _Sweep:
+    """The push table and chunks of ``job``'s run directory (as the store holds them)."""
+    store = SweepStore(job.run_dir, writer=jax.process_index() == 0)
+    table = store.load_table()
+    return _Sweep(job.run_dir, store, table, chunk_rows(len(table), job.chunk_size))
+
+
+def walks_needed(sweep: _Sweep, row_groups) -> dict[tuple, set]:
+    """The undisturbed walks the rows start from: ``{(speed, turn, replan): phases}``,
+    each with every phase the whole table asks of it (so that one walk serves every
+    chunk)."""
+    table = sweep.table
+    keys = [
+        walk_key(table["apex_speed"][r], table["turn_deg"][r], table["replan"][r])
+        for r in range(len(table))
+    ]
+    wanted = sorted({keys[r] for rows in row_groups for r in rows})
+    return {
+        key: set(np.unique(table["phase"][[k == key for k in keys]]).tolist()) for key in wanted
+    }
+
+
 class ChunkRunner:
     """Runs chunks of sweeps with ``job``'s settings in this process (see the module doc).
 
-    ``make_backend``: False prepares walks only (a driver whose workers run the chunks)."""
+    ``make_backend``: False prepares walks only."""
 
     def __init__(self, job: SweepJob, make_backend: bool = True):
         jax.config.update("jax_enable_x64", job.x64)
@@ -94,6 +117,7 @@ class ChunkRunner:
         self._sweep: _Sweep | None = None
         self.warm = False
         """Whether :meth:`warm_up` ran (a worker compiles once)."""
+        self._step = None  # the jitted single-robot step the walks use, compiled once
         self.backend = None
         if make_backend and job.backend == "c":
             self.backend = CBatchBackend(
@@ -109,9 +133,7 @@ class ChunkRunner:
         if job.settings_digest() != self.job.settings_digest():
             raise ValueError("ChunkRunner: a job with other settings needs its own runner")
         if self._sweep is None or self._sweep.run_dir != job.run_dir:
-            store = SweepStore(job.run_dir, writer=jax.process_index() == 0)
-            table = store.load_table()
-            self._sweep = _Sweep(job.run_dir, store, table, chunk_rows(len(table), job.chunk_size))
+            self._sweep = load_sweep(job)
         return self._sweep
 
     def prepare_walks(self, job: SweepJob, chunks, progress: bool = False) -> float:
@@ -119,50 +141,44 @@ class ChunkRunner:
         returns the seconds it took."""
         t0 = time.perf_counter()
         sweep = self.sweep(job)
-        self._add_walks(job, sweep, [sweep.chunks[i] for i in chunks], progress)
+        needed = walks_needed(sweep, [sweep.chunks[i] for i in chunks])
+        for key, phases in tqdm(needed.items(), "undisturbed walks", disable=not progress):
+            self.walk(job, key, phases)
         return time.perf_counter() - t0
 
-    def _add_walks(self, job: SweepJob, sweep: _Sweep, row_groups, progress=False) -> None:
-        """The undisturbed walks the rows need: one per (speed, turn, replan), snapshotted
-        at every phase the table asks of it and kept in the walks folder, so that no
-        process walks one twice (a walk does not depend on which phases it stops at). A
-        kept walk lacking a phase the table asks for is walked again with every phase."""
-        table = sweep.table
-        keys = [
-            walk_key(table["apex_speed"][r], table["turn_deg"][r], table["replan"][r])
-            for r in range(len(table))
-        ]
-        wanted = {}
-        for key in sorted({keys[r] for rows in row_groups for r in rows}):
-            phases = set(np.unique(table["phase"][[k == key for k in keys]]).tolist())
-            have = self.snapshots.get(key)
-            if have is None or not phases <= set(have.phases.tolist()):
-                wanted[key] = phases
-        step_fn = None
-        for key, phases in tqdm(wanted.items(), "undisturbed walks", disable=not progress):
-            path = job.walk_path(key)
-            if path.exists():
-                template = initial_controller_state(self.ctrl, self.sim_model, *key)
-                kept = load_snapshots(path, template)
-                if phases <= set(kept.phases.tolist()):
-                    self.snapshots[key] = kept
-                    continue
-                phases |= set(kept.phases.tolist())
-            step_fn = step_fn or jax.jit(self.ctrl.step)
-            self.snapshots[key] = snapshot_walk(
-                self.sim_model, self.ctrl, step_fn, *key, job.push_step, sorted(phases),
-                job.fall_height,
-            )  # fmt: skip
-            if sweep.store.writer:
-                path.parent.mkdir(parents=True, exist_ok=True)
-                save_snapshots(path, self.snapshots[key])
+    def walk(self, job: SweepJob, key: tuple, phases: set) -> float:
+        """Have the undisturbed walk ``key`` (speed, turn, replan) snapshotted at
+        ``phases`` at hand: held already, or kept in the walks folder, or walked now (at
+        every phase it is asked for and was kept at) and kept there, so that no process
+        walks it twice (a walk does not depend on which phases it stops at). Returns the
+        seconds it took."""
+        t0 = time.perf_counter()
+        have = self.snapshots.get(key)
+        if have is not None and phases <= set(have.phases.tolist()):
+            return 0.0
+        path = job.walk_path(key)
+        kept = kept_phases(path)
+        if kept and phases <= kept:
+            template = initial_controller_state(self.ctrl, self.sim_model, *key)
+            self.snapshots[key] = load_snapshots(path, template)
+            return time.perf_counter() - t0
+        if self._step is None:
+            self._step = jax.jit(self.ctrl.step)
+        self.snapshots[key] = snapshot_walk(
+            self.sim_model, self.ctrl, self._step, *key, job.push_step, sorted(phases | kept),
+            job.fall_height,
+        )  # fmt: skip
+        if jax.process_index() == 0:
+            save_snapshots(path, self.snapshots[key])
+        return time.perf_counter() - t0
 
     def starts(self, job: SweepJob, index: int) -> ChunkStarts:
         """The start states of chunk ``index`` of ``job``, padded to ``chunk_size`` with
         its last push."""
         sweep = self.sweep(job)
         rows = sweep.chunks[index]
-        self._add_walks(job, sweep, [rows])
+        for key, phases in walks_needed(sweep, [rows]).items():
+            self.walk(job, key, phases)
         table, model = sweep.table, self.model
         padded = np.concatenate([rows, np.full(job.chunk_size - len(rows), rows[-1])])
         times, phys, cstate = gather_starts(

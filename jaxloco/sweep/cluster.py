@@ -7,15 +7,16 @@ they die and their tasks retried elsewhere, and ``dask-jobqueue`` starts workers
 PBS or SGE when a cluster has a batch scheduler.
 
 Each chunk is one task (:func:`run_chunk_task`). A worker builds one runner per set of
-settings and keeps it between tasks and sweeps (:class:`SweepWorkerPlugin`); it compiles
-its chunk program while the driver walks the undisturbed walks (:func:`warm_up_task`),
-loads the walks from the run directory, and writes each chunk's file there itself, so the
-driver only waits. If a worker dies, its task runs again on another; if the driver
-dies, running the same command again resumes from the chunk files. On one machine
-:func:`local_cluster` starts one single-threaded worker process per core, each pinned to
-its core (the batched tick keeps one core busy, so pinned processes do the most work); on
-a cluster, give the scheduler's address and a run directory every worker can read and
-write (a shared file system).
+settings and keeps it between tasks and sweeps (:class:`SweepWorkerPlugin`). Before the
+chunks, the workers walk the undisturbed walks the sweep starts from, one task each, into
+the walks folder (:func:`walk_task`), and each compiles its chunk program
+(:func:`warm_up_task`), side by side; then each chunk task loads the walks it needs and
+writes the chunk's file itself, so the driver only waits. If a worker dies, its task runs
+again on another; if the driver dies, running the same command again resumes from the
+chunk files. On one machine :func:`local_cluster` starts one single-threaded worker
+process per core, each pinned to its core (the batched tick keeps one core busy, so
+pinned processes do the most work); on a cluster, give the scheduler's address and a run
+directory every worker can read and write (a shared file system).
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from collections.abc import Sequence
 from distributed import Client, LocalCluster, as_completed, get_worker, wait
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from jaxloco.sweep.chunks import ChunkReport, ChunkRunner
+from jaxloco.sweep.chunks import ChunkReport, ChunkRunner, load_sweep, walks_needed
 from jaxloco.sweep.executors import available_cores, pin_process, progress_bar, run_record
 from jaxloco.sweep.job import SweepJob
 
@@ -73,9 +74,16 @@ def run_chunk_task(job: SweepJob, index: int) -> ChunkReport:
     return _runner(job).run_chunk(job, index)
 
 
+def walk_task(job: SweepJob, key: tuple, phases: set) -> float:
+    """Walk (or find kept) the undisturbed walk ``key`` at ``phases``, into the walks
+    folder; returns the seconds it took."""
+    job = job.replace(nthread=1)
+    return _runner(job).walk(job, key, phases)
+
+
 def warm_up_task(job: SweepJob) -> float:
-    """Build this worker's runner and compile its chunk program (while the driver walks);
-    returns the seconds the compile took (0: the runner was warm)."""
+    """Build this worker's runner and compile its chunk program; returns the seconds the
+    compile took (0: the runner was warm)."""
     runner = _runner(job.replace(nthread=1))
     return 0.0 if runner.warm else runner.warm_up()
 
@@ -113,23 +121,27 @@ def run_on_dask(
     todo: Sequence[int],
     client,
     progress: bool = True,
-    driver: ChunkRunner | None = None,
 ) -> dict:
     """Run the chunks ``todo`` of ``job`` as tasks on ``client``'s cluster
-    (:func:`dask_client`). Returns the run's record for the manifest. ``driver``: a
-    runner of this process to reuse; it walks the undisturbed walks (kept in the run
-    directory for the workers) while every worker builds its runner and compiles its
-    chunk program."""
+    (:func:`dask_client`). Returns the run's record for the manifest. The workers do
+    every step: the undisturbed walks, their compiles and the chunks."""
     t_start = time.perf_counter()
     workers = list(client.scheduler_info()["workers"])
-    # One warm-up per worker (loosely bound: a worker that dies meanwhile does not hold
-    # the run up; its replacement compiles on its first chunk instead).
+    # The workers do the preparing, side by side: the undisturbed walks (one task each,
+    # kept in the walks folder), then each its own compile of the chunk program. Loosely
+    # bound, so a worker that dies meanwhile does not hold the run up.
+    sweep = load_sweep(job)
+    needed = walks_needed(sweep, [sweep.chunks[i] for i in todo])
+    walking = [
+        client.submit(walk_task, job, key, phases, workers=[workers[k % len(workers)]],
+                      allow_other_workers=True, pure=False)
+        for k, (key, phases) in enumerate(needed.items())
+    ]  # fmt: skip
     warming = [
         client.submit(warm_up_task, job, workers=[w], allow_other_workers=True, pure=False)
         for w in workers
     ]
-    driver = driver or ChunkRunner(job, make_backend=False)
-    walks_s = driver.prepare_walks(job, todo, progress)
+    walks_s = sum(f.result() for f in walking)  # a walk that fails stops the run
     wait(warming)
     n_workers = len(workers)
     t_tasks = time.perf_counter()
@@ -139,7 +151,7 @@ def run_on_dask(
     ]
     reports = []
     label = f"push sweep ({job.backend}, {n_workers} Dask workers)"
-    with progress_bar(driver.sweep(job), todo, label, progress) as bar:
+    with progress_bar(sweep, todo, label, progress) as bar:
         for future in as_completed(futures):
             report = future.result()
             reports.append(report)

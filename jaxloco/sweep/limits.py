@@ -405,7 +405,7 @@ def run_limit_search(
             from jaxloco.sweep.cluster import dask_client
 
             client = stack.enter_context(dask_client(address, workers))
-        runner = ChunkRunner(job, make_backend=client is None)
+        runner = None if client is not None else ChunkRunner(job)
 
         def run_round(table, round_dir, walks_dir):
             round_job = job.replace(run_dir=str(round_dir), walks_dir=str(walks_dir))

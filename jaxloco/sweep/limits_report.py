@@ -1,9 +1,9 @@
 """The report of a limit search (:mod:`.limits`): where recovery ends, per direction and phase.
 
-- ``limits.json``: every number (per cell: the limit, its bracket, whether it is censored,
+- ``summary.json``: every number (per cell: the limit, its bracket, whether it is censored,
   each round's tested impulse and recovered replicas; per variant: median, min, max and
   the worst phase's limit per direction);
-- ``limits.md``: the tables, compared with the paper's 52 N s;
+- ``summary.md``: the tables, compared with the paper's 52 N s;
 - ``limits_polar.png``: the limit per direction, one panel per variant, one curve per
   phase, the paper's push as a dashed circle;
 - ``limits_heatmap.png``: direction x phase maps of the limit, one per variant.
@@ -94,10 +94,10 @@ def _markdown(summary: dict) -> str:
         "# Limit search: the largest recovered impulse",
         "",
         f"{summary['rounds_done']} bisection rounds over {s['impulse_range']} N s "
-        f"(resolution {summary['resolution_Ns']:g} N s), {s['replicas']} replicas per tested "
-        f"impulse (qvel noise {s['qvel_noise']:g}), recovered when >= {s['min_recovered']} "
-        f"recover; {summary['pushes_run']} pushes. The paper's push: "
-        f"{summary['paper_impulse_Ns']:g} N s.",
+        f"(resolution {summary['resolution_Ns']:g} N s), up to {s['replicas']} replicas per "
+        f"tested impulse (qvel noise {s['qvel_noise']:g}; the last only where the others "
+        f"left the decision open), recovered when >= {s['min_recovered']} recover; "
+        f"{summary['pushes_run']} pushes. The paper's push: {summary['paper_impulse_Ns']:g} N s.",
         "",
         "| variant | median limit (N s) | min | max | cells >= 52 N s |",
         "|---|---|---|---|---|",
@@ -127,8 +127,8 @@ def write_limits_report(result: LimitResult, out_dir, dpi: int = 120) -> dict:
     """Write the report files (see the module doc) into ``out_dir``; returns the summary."""
     out = Path(out_dir)
     summary = result.summary()
-    write_json(out / "limits.json", summary)
-    (out / "limits.md").write_text(_markdown(summary))
+    write_json(out / "summary.json", summary)
+    (out / "summary.md").write_text(_markdown(summary))
     plot_limits_polar(result).savefig(out / "limits_polar.png", dpi=dpi)
     plot_limits_heatmap(result).savefig(out / "limits_heatmap.png", dpi=dpi)
     return summary

@@ -53,7 +53,7 @@ def save_snapshots(path, snapshots: WalkSnapshots) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     leaves = jax.tree.leaves(snapshots.controller)
-    tmp = path.with_name(path.stem + ".tmp.npz")
+    tmp = path.with_name(f"{path.stem}.tmp{os.getpid()}.npz")
     np.savez(
         tmp,
         phases=snapshots.phases,
@@ -80,6 +80,15 @@ def load_snapshots(path, controller_template) -> WalkSnapshots:
             step_start,
             step_duration,
         )
+
+
+def kept_phases(path) -> set[float]:
+    """The phases of the walk kept at ``path`` (empty when there is none)."""
+    path = Path(path)
+    if not path.exists():
+        return set()
+    with np.load(path) as f:
+        return set(f["phases"].tolist())
 
 
 def walk_key(apex_speed: float, turn_deg: float, replan: bool) -> tuple:
