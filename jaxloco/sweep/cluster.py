@@ -7,11 +7,10 @@ they die and their tasks retried elsewhere, and ``dask-jobqueue`` starts workers
 PBS or SGE when a cluster has a batch scheduler.
 
 Each chunk is one task (:func:`run_chunk_task`). A worker builds one runner per set of
-settings and keeps it between tasks and sweeps (:class:`SweepWorkerPlugin`). Before the
-chunks, the workers walk the undisturbed walks the sweep starts from, one task each, into
-the walks folder (:func:`walk_task`), and each compiles its chunk program
-(:func:`warm_up_task`), side by side; then each chunk task loads the walks it needs and
-writes the chunk's file itself, so the driver only waits. If a worker dies, its task runs
+settings and keeps it between tasks and sweeps (:class:`SweepWorkerPlugin`); the driver
+walks the undisturbed walks and compiles the chunk program into the persistent cache
+first (:func:`run_on_dask`), then each chunk task loads the walks it needs and writes the
+chunk's file itself, so the driver only waits. If a worker dies, its task runs
 again on another; if the driver dies, running the same command again resumes from the
 chunk files. On one machine :func:`local_cluster` starts one single-threaded worker
 process per core, each pinned to its core (the batched tick keeps one core busy, so
@@ -26,10 +25,10 @@ import hashlib
 import time
 from collections.abc import Sequence
 
-from distributed import Client, LocalCluster, as_completed, get_worker, wait
+from distributed import Client, LocalCluster, as_completed, get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from jaxloco.sweep.chunks import ChunkReport, ChunkRunner, load_sweep, walks_needed
+from jaxloco.sweep.chunks import ChunkReport, ChunkRunner
 from jaxloco.sweep.executors import available_cores, pin_process, progress_bar, run_record
 from jaxloco.sweep.job import SweepJob
 
@@ -74,20 +73,6 @@ def run_chunk_task(job: SweepJob, index: int) -> ChunkReport:
     return _runner(job).run_chunk(job, index)
 
 
-def walk_task(job: SweepJob, key: tuple, phases: set) -> float:
-    """Walk (or find kept) the undisturbed walk ``key`` at ``phases``, into the walks
-    folder; returns the seconds it took."""
-    job = job.replace(nthread=1)
-    return _runner(job).walk(job, key, phases)
-
-
-def warm_up_task(job: SweepJob) -> float:
-    """Build this worker's runner and compile its chunk program; returns the seconds the
-    compile took (0: the runner was warm)."""
-    runner = _runner(job.replace(nthread=1))
-    return 0.0 if runner.warm else runner.warm_up()
-
-
 def local_cluster(workers: int) -> LocalCluster:
     """A ``LocalCluster`` of ``workers`` single-threaded worker processes (no dashboard)."""
     return LocalCluster(
@@ -121,28 +106,21 @@ def run_on_dask(
     todo: Sequence[int],
     client,
     progress: bool = True,
+    driver: ChunkRunner | None = None,
 ) -> dict:
     """Run the chunks ``todo`` of ``job`` as tasks on ``client``'s cluster
-    (:func:`dask_client`). Returns the run's record for the manifest. The workers do
-    every step: the undisturbed walks, their compiles and the chunks."""
+    (:func:`dask_client`). Returns the run's record for the manifest.
+
+    First this process (``driver``: a runner of it to reuse) walks the undisturbed walks
+    the chunks start from, into the walks folder, and, with a persistent compile cache,
+    compiles the chunk program into it: XLA compiles faster unpinned than on a worker's
+    one core, and every worker then loads the program instead of compiling it."""
     t_start = time.perf_counter()
+    driver = driver or ChunkRunner(job, make_backend=bool(job.cache_dir))
+    walks_s = driver.prepare_walks(job, todo, progress)
+    if job.cache_dir and driver.backend is not None and not driver.warm:
+        driver.warm_up()  # into the persistent cache, for every worker to load
     workers = list(client.scheduler_info()["workers"])
-    # The workers do the preparing, side by side: the undisturbed walks (one task each,
-    # kept in the walks folder), then each its own compile of the chunk program. Loosely
-    # bound, so a worker that dies meanwhile does not hold the run up.
-    sweep = load_sweep(job)
-    needed = walks_needed(sweep, [sweep.chunks[i] for i in todo])
-    walking = [
-        client.submit(walk_task, job, key, phases, workers=[workers[k % len(workers)]],
-                      allow_other_workers=True, pure=False)
-        for k, (key, phases) in enumerate(needed.items())
-    ]  # fmt: skip
-    warming = [
-        client.submit(warm_up_task, job, workers=[w], allow_other_workers=True, pure=False)
-        for w in workers
-    ]
-    walks_s = sum(f.result() for f in walking)  # a walk that fails stops the run
-    wait(warming)
     n_workers = len(workers)
     t_tasks = time.perf_counter()
     tag = hashlib.sha256(job.run_dir.encode()).hexdigest()[:8]
@@ -151,7 +129,7 @@ def run_on_dask(
     ]
     reports = []
     label = f"push sweep ({job.backend}, {n_workers} Dask workers)"
-    with progress_bar(sweep, todo, label, progress) as bar:
+    with progress_bar(driver.sweep(job), todo, label, progress) as bar:
         for future in as_completed(futures):
             report = future.result()
             reports.append(report)

@@ -405,7 +405,8 @@ def run_limit_search(
             from jaxloco.sweep.cluster import dask_client
 
             client = stack.enter_context(dask_client(address, workers))
-        runner = None if client is not None else ChunkRunner(job)
+        # Here: the walks and the chunk program (in process: the chunks too).
+        runner = ChunkRunner(job, make_backend=client is None or bool(job.cache_dir))
 
         def run_round(table, round_dir, walks_dir):
             round_job = job.replace(run_dir=str(round_dir), walks_dir=str(walks_dir))

@@ -133,9 +133,8 @@ def run_table(
     one worker per core when each gets enough work to pay for its start
     (:func:`_auto_workers`), else in this process. The outcomes are the same wherever
     the chunks run. ``manifest``: more entries for the run directory's manifest.
-    ``client``: a Dask client (:func:`~jaxloco.sweep.cluster.dask_client`) to reuse across
-    calls (``workers``/``address`` then unused); ``runner``: a runner of this process to
-    reuse when the chunks run here.
+    ``client``/``runner``: a Dask client (:func:`~jaxloco.sweep.cluster.dask_client`) and a
+    runner of this process to reuse across calls (``workers``/``address`` then unused).
     """
     if workers < 0:
         raise ValueError(f"workers must be >= 0 (0: one per core); got {workers}")
@@ -173,12 +172,12 @@ def run_table(
     if todo and client is not None:
         from jaxloco.sweep.cluster import run_on_dask
 
-        record = run_on_dask(job, todo, client, progress)
+        record = run_on_dask(job, todo, client, progress, runner)
     elif todo and (address or min(workers, len(todo)) > 1):
         from jaxloco.sweep.cluster import dask_client, run_on_dask
 
         with dask_client(address, min(workers, len(todo))) as client:
-            record = run_on_dask(job, todo, client, progress)
+            record = run_on_dask(job, todo, client, progress, runner)
     elif todo:
         record = run_in_process(job, todo, progress, runner)
     if todo:
