@@ -294,6 +294,23 @@ def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path
         np.testing.assert_array_equal(fixed.outcomes[k], one.outcomes[k], err_msg=k)
 
 
+def test_the_steady_rate_leaves_out_each_workers_first_chunk():
+    from jaxloco.sweep.chunks import ChunkReport
+    from jaxloco.sweep.executors import run_record
+
+    def report(i, worker, seconds):
+        return ChunkReport(i, 16, 16, seconds, 40_000, worker)
+
+    # Finish order: both workers' first chunks (start-up and compile), then two steady ones.
+    done = [report(0, "a", 30.0), report(1, "b", 25.0), report(2, "a", 8.0), report(3, "b", 10.0)]
+    run = run_record([0, 1, 2, 3], done, 5.0, 60.0, {"executor": "dask"})
+    assert run["first_chunk_s"] == 30.0 and run["steady_chunk_s"] == 9.0
+    assert run["env_steps_per_s"] == pytest.approx(2 * 40_000 / 9.0)  # side by side
+    assert run["overall_env_steps_per_s"] == pytest.approx(160_000 / 60.0)
+    alone = run_record([0], done[:1], 5.0, 30.0, {})
+    assert alone["env_steps_per_s"] is None  # no compile-free chunk
+
+
 def test_workers_are_validated(tmp_path):
     from jaxloco.sweep import run_sweep
 

@@ -60,6 +60,8 @@ class ChunkReport:
     """Wall time of the chunk (the first one a runner runs includes the compile)."""
     env_steps: int
     """Simulated ticks of the chunk, padding included."""
+    worker: str = "local"
+    """Where it ran: ``local`` (this process) or a Dask worker's address."""
 
 
 @dataclasses.dataclass

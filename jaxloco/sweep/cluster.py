@@ -21,6 +21,7 @@ directory every worker can read and write (a shared file system).
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import time
 from collections.abc import Sequence
@@ -70,7 +71,8 @@ def _runner(job: SweepJob) -> ChunkRunner:
 def run_chunk_task(job: SweepJob, index: int) -> ChunkReport:
     """The task of chunk ``index``: run it on this worker's runner and write it."""
     job = job.replace(nthread=1)
-    return _runner(job).run_chunk(job, index)
+    report = _runner(job).run_chunk(job, index)
+    return dataclasses.replace(report, worker=str(get_worker().address))
 
 
 def local_cluster(workers: int) -> LocalCluster:

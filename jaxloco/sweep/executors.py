@@ -97,18 +97,24 @@ def progress_bar(runner: ChunkRunner, todo, label: str, progress: bool):
 
 
 def run_record(todo, reports: list[ChunkReport], walks_s: float, wall_s: float, extra: dict):
-    """The manifest's record of one run: which chunks, and how fast (the first chunk a
-    runner runs includes its compile, so the steady rate needs a second)."""
-    by_index = sorted(reports, key=lambda r: r.index)
-    steady = [r.seconds for r in by_index[1:]]
+    """The manifest's record of one run: which chunks, and how fast. ``reports`` in the
+    order the chunks finished. The first chunk each worker runs includes its start (and
+    compile), so the steady rate is over the later ones, the workers side by side: their
+    number times a chunk's env-steps over the mean steady chunk time (None without any)."""
+    by_worker: dict[str, list[ChunkReport]] = {}
+    for r in reports:
+        by_worker.setdefault(r.worker, []).append(r)
+    firsts = [rs[0].seconds for rs in by_worker.values()]
+    steady = [r.seconds for rs in by_worker.values() for r in rs[1:]]
     steady_s = float(np.mean(steady)) if steady else None
+    chunk_steps = reports[0].env_steps if reports else 0
     env_steps = sum(r.env_steps for r in reports)
     return {
         "chunks": [int(i) for i in todo],
         "undisturbed_walks_s": walks_s,
-        "first_chunk_s": by_index[0].seconds if by_index else None,
+        "first_chunk_s": max(firsts) if firsts else None,
         "steady_chunk_s": steady_s,
-        "env_steps_per_s": None if steady_s is None else by_index[0].env_steps / steady_s,
+        "env_steps_per_s": None if steady_s is None else len(by_worker) * chunk_steps / steady_s,
         "overall_env_steps_per_s": env_steps / wall_s if wall_s > 0 else None,
         "wall_s": wall_s,
         **extra,
