@@ -26,6 +26,7 @@ import hashlib
 import time
 from collections.abc import Sequence
 
+import dask
 from distributed import Client, LocalCluster, as_completed, get_worker
 from distributed.diagnostics.plugin import WorkerPlugin
 
@@ -75,15 +76,22 @@ def run_chunk_task(job: SweepJob, index: int) -> ChunkReport:
     return dataclasses.replace(report, worker=str(get_worker().address))
 
 
+WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+"""Dask settings of the local workers: no statistical profiler (nothing reads its samples,
+and its sampling thread shares the worker's one core with the chunk)."""
+
+
 def local_cluster(workers: int) -> LocalCluster:
-    """A ``LocalCluster`` of ``workers`` single-threaded worker processes (no dashboard)."""
-    return LocalCluster(
-        n_workers=workers,
-        threads_per_worker=1,
-        processes=True,
-        dashboard_address=None,
-        memory_limit=0,  # compiled programs, not data, fill a worker
-    )
+    """A ``LocalCluster`` of ``workers`` single-threaded worker processes (no dashboard,
+    :data:`WORKER_CONFIG`)."""
+    with dask.config.set(WORKER_CONFIG):  # the nannies hand it to their workers
+        return LocalCluster(
+            n_workers=workers,
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+            memory_limit=0,  # compiled programs, not data, fill a worker
+        )
 
 
 @contextlib.contextmanager
