@@ -76,9 +76,15 @@ def run_chunk_task(job: SweepJob, index: int) -> ChunkReport:
     return dataclasses.replace(report, worker=str(get_worker().address))
 
 
-WORKER_CONFIG = {"distributed.worker.profile.enabled": False}
+WORKER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+}
 """Dask settings of the local workers: no statistical profiler (nothing reads its samples,
-and its sampling thread shares the worker's one core with the chunk)."""
+and its sampling thread shares the worker's one core with the chunk), and glibc's own
+malloc trimming instead of Dask's fixed threshold, which also turns off glibc's adaptive
+mmap threshold: the chunk's per-tick loop allocates many short-lived buffers
+(``docs/sweep.md``)."""
 
 
 def local_cluster(workers: int) -> LocalCluster:
