@@ -8,10 +8,15 @@ differentiable planner) and save it with its learning curve.
     jaxloco train-planner actor_critic.max_iterations=0 refine.horizon=2 refine.iterations=100
     jaxloco train-planner hydra.run.dir=runs/planner   # choose the output folder
     jaxloco train-planner resume_from=runs/planner/checkpoint
+    jaxloco train-planner method=ppo                   # Brax's PPO baseline instead
+    jaxloco train-planner method=ppo ppo.num_timesteps=8000000 ppo.seed=1
 
 Writes to hydra's run directory: ``checkpoint/`` (weights, config, training state; load it
 with ``jaxloco.learning.load_planner(path)``), ``learning_curve.png`` (return, survival,
-spread and survival basin against iterations and wall time) and ``history.json``.
+spread and survival basin against iterations and wall time) and ``history.json``. With
+``method=ppo`` the checkpoint holds the PPO networks (also loaded by ``load_planner``) and
+the curve is the survival basin and Brax's episode reward against env steps and wall time;
+``planner.*`` and ``starts.*`` apply to both methods.
 """
 
 import logging
@@ -35,10 +40,11 @@ from jaxloco.learning import (
     train,
 )
 from jaxloco.learning.checkpoint import load_checkpoint_config, load_train_state
+from jaxloco.learning.ppo import PPOConfig, save_ppo_checkpoint, train_ppo
 from jaxloco.learning.training import params_fingerprint
 from jaxloco.planner import PSPParams
 from jaxloco.runtime import write_json
-from jaxloco.viz.learning import plot_learning_curve
+from jaxloco.viz.learning import plot_learning_curve, plot_ppo_curve
 
 log = logging.getLogger(__name__)
 ActorCriticSchema = config_schema(ActorCriticConfig, FAST)
@@ -48,10 +54,15 @@ PlannerSchema = config_schema(PSPParams)
 EvalSchema = config_schema(EvalConfig)
 TurnsSchema = config_schema(EpisodeTurns)
 RefineSchema = config_schema(RefineConfig)
+PPOSchema = config_schema(PPOConfig)
+METHODS = ("rl_psp", "ppo")
 
 
 @dataclass
 class TrainPlannerConfig(RunConfig):
+    method: str = "rl_psp"
+    """``rl_psp``: Algorithm 1, then the refinement (the paper's learner); ``ppo``: Brax's
+    PPO on the same step task (a baseline; its settings are ``ppo.*``)."""
     actor_critic: ActorCriticSchema = field(default_factory=ActorCriticSchema)
     grid: GridSchema = field(default_factory=GridSchema)
     starts: StartsSchema = field(default_factory=StartsSchema)
@@ -64,8 +75,10 @@ class TrainPlannerConfig(RunConfig):
     refine: RefineSchema = field(default_factory=RefineSchema)
     """Refinement of the mean policy through the differentiable planner after Algorithm 1
     (``refine.iterations=0``: Algorithm 1 alone, as the paper)."""
+    ppo: PPOSchema = field(default_factory=PPOSchema)
+    """Brax PPO's settings (``method=ppo`` only)."""
     resume_from: str = ""
-    """A checkpoint folder to continue training from (its config is used)."""
+    """A checkpoint folder to continue training from (its config is used; RL-PSP only)."""
     progress: bool = True
     dpi: int = 130
 
@@ -86,6 +99,10 @@ def build_config(cfg: TrainPlannerConfig) -> TrainConfig:
 
 
 def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
+    if cfg.method not in METHODS:
+        raise ValueError(f"method must be one of {list(METHODS)}; got {cfg.method!r}")
+    if cfg.method == "ppo":
+        return run_ppo(cfg, out_dir)
     state = None
     if cfg.resume_from:
         config, _ = load_checkpoint_config(cfg.resume_from)
@@ -142,6 +159,35 @@ def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
         "kept survival basin %s%s",
         _fmt(result.best_basin),
         f", steering basin {_fmt(steering)}" if steering is not None else "",
+    )
+    return info
+
+
+def run_ppo(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
+    if cfg.resume_from:
+        raise ValueError("resume_from: resuming is for method=rl_psp; PPO runs start afresh")
+    config = to_params(PPOConfig, cfg.ppo)
+    result = train_ppo(
+        config,
+        to_params(PSPParams, cfg.planner),
+        to_params(StartStates, cfg.starts),
+        progress=cfg.progress,
+    )
+    info = {
+        "method": "ppo",
+        "best_basin": result.best_basin,
+        "train_seconds": result.train_seconds,
+        "env_steps": result.history[-1]["env_steps"],
+    }
+    save_ppo_checkpoint(out_dir / "checkpoint", result.planner, info)
+    write_json(out_dir / "history.json", {"info": info, "history": result.history})
+    fig = plot_ppo_curve(result.history, title="PPO (Brax) on the step task")
+    fig.savefig(out_dir / "learning_curve.png", dpi=cfg.dpi)
+    log.info(
+        "PPO: %d env steps in %.1f s (compile and evaluations included); kept survival basin %s",
+        info["env_steps"],
+        result.train_seconds,
+        _fmt(result.best_basin),
     )
     return info
 

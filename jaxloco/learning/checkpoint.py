@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import json
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -46,6 +47,11 @@ refined through the planner (``jaxloco train-planner``): a larger survival basin
 the full robot it falls on Fig. 11's steering walk, which the default walks through
 (docs/learning.md)."""
 FORMAT_VERSION = 1
+PPO_PARAMS_FILE = "ppo_params.msgpack"
+"""The file that marks a checkpoint of :mod:`jaxloco.learning.ppo` (Brax's PPO)."""
+
+if TYPE_CHECKING:
+    from jaxloco.learning.ppo import PPOPlanner
 
 
 def save_checkpoint(
@@ -159,9 +165,11 @@ def _batched(fn, state):
     return out.reshape(*state.shape[:-1], *out.shape[1:])
 
 
-def load_planner(path=None, shipped: str = "default") -> LearnedPlanner:
-    """Load a trained planner from ``path``; with no path, the policy shipped with jaxloco
-    named ``shipped`` (a key of :data:`SHIPPED_POLICIES`: ``"default"`` or ``"refined"``)."""
+def load_planner(path=None, shipped: str = "default") -> LearnedPlanner | PPOPlanner:
+    """Load a trained planner from ``path`` (an RL-PSP checkpoint, or a PPO one from
+    ``jaxloco train-planner method=ppo``); with no path, the policy shipped with jaxloco
+    named ``shipped`` (a key of :data:`SHIPPED_POLICIES`: ``"default"`` or ``"refined"``).
+    Both kinds have the same interface: ``policy``, ``mean_action``, ``value``, ``psp``."""
     if path is None:
         if shipped not in SHIPPED_POLICIES:
             raise ValueError(
@@ -169,10 +177,15 @@ def load_planner(path=None, shipped: str = "default") -> LearnedPlanner:
             )
         path = assets_dir() / SHIPPED_POLICIES[shipped]
     path = Path(path)
+    if (path / PPO_PARAMS_FILE).exists():
+        # Imported here: Brax loads only for PPO checkpoints, not for every walking controller.
+        from jaxloco.learning.ppo import load_ppo_planner
+
+        return load_ppo_planner(path)
     if not (path / "weights.npz").exists():
         raise FileNotFoundError(
-            f"no planner checkpoint at {path} (expected weights.npz and config.json); "
-            "train one with `jaxloco train-planner`"
+            f"no planner checkpoint at {path} (expected weights.npz or {PPO_PARAMS_FILE}, "
+            "and config.json); train one with `jaxloco train-planner`"
         )
     config, _ = load_checkpoint_config(path)
     return LearnedPlanner(load_params(path, config), config.grid, config.planner)

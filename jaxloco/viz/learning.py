@@ -76,3 +76,26 @@ def plot_value_map(
     ax.legend(loc="upper right", fontsize=8, facecolor="0.5")
     ax.set(xlabel="y_apex (m)", ylabel="xd_apex (m/s)", title=f"{title} (yd_apex = {yd:+.2f})")
     return fig
+
+
+def plot_ppo_curve(history: list[dict], title: str = "PPO training") -> Figure:
+    """Survival basin and Brax's mean evaluation episode reward against env steps and wall
+    time (rows of :class:`~jaxloco.learning.ppo.PPOResult`'s history)."""
+    fig = Figure(figsize=(9, 6), constrained_layout=True)
+    axes = fig.subplots(2, 2)
+    steps = np.array([h["env_steps"] for h in history], float)
+    wall = np.array([h["wall_s"] for h in history], float)
+    series = (
+        ("basin", "survival basin (deterministic policy)"),
+        ("episode_reward", "episode reward"),
+    )
+    for col, (key, label) in enumerate(series):
+        ys = np.array([np.nan if h.get(key) is None else h[key] for h in history], float)
+        for row, (x, xlabel) in enumerate(((steps, "env steps"), (wall, "wall time (s)"))):
+            ax = axes[row, col]
+            ax.plot(x, ys, "o-")
+            ax.set_xlabel(xlabel)
+            ax.set_ylabel(label)
+            ax.grid(alpha=0.3)
+    fig.suptitle(title)
+    return fig
