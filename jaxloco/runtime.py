@@ -98,6 +98,17 @@ def cpu_compiler_options() -> dict | None:
     return {"xla_backend_optimization_level": 1} if jax.default_backend() == "cpu" else None
 
 
+def single_thread_compiler_options() -> dict | None:
+    """``jax.jit(..., compiler_options=...)`` for the sweep's batched controller tick, which
+    sweep workers run on one core each: XLA:CPU calls Eigen's single-threaded kernels
+    instead of handing matrix products to its intra-op thread pool (``docs/sweep.md``).
+    ``None`` (XLA's defaults) on other backends. A compile option rather than an
+    ``XLA_FLAGS`` setting: the driver that compiles the program into the persistent cache
+    and the workers that load it must agree on its cache key, and every process must run
+    the same program for outcomes to be bit-identical wherever a chunk runs."""
+    return {"xla_cpu_multi_thread_eigen": False} if jax.default_backend() == "cpu" else None
+
+
 @contextlib.contextmanager
 def watchdog(seconds: float, what: str = "this run"):
     """Fail loudly if the block takes longer than ``seconds``.
