@@ -1,27 +1,41 @@
-"""RL-PSP training speed: wall time to a survival basin, transitions/s, memory, features.
+"""Step-policy learners side by side: wall time to a survival basin, basins on independent
+draws, throughput, and (full run) how each policy walks the full robot.
 
     python benchmarks/bench_learning.py [--json PATH] [--quick]
 
-Targets (2 CPU cores): a policy with survival basin >= 50% in <= 10 s, compile
-included (reported apart). Cases: the default (the FAST preset of Algorithm 1, then the
-pathwise refinement of :mod:`jaxloco.learning.refine`), Algorithm 1 alone, refinement
-alone (no Algorithm 1: 2-step rollouts from the initial weights, the fastest route to the
-target), and as the baseline the paper's exact Algorithm 1 configuration (plain summed updates,
-alpha = beta = 3e-5) given the same iteration budget; and dense evaluation of all 30,240 RBF
-features against the local one. The kept weights are chosen on the training evaluator's
-draw (2048 states), so each is also scored on two independent draws: 4096 states, the seed
-``jaxloco policy-eval`` uses, and 65,536 states (one standard error 0.002).
+Targets (2 CPU cores): ``jaxloco train-planner``'s default reaches a 50% survival basin in
+<= 10 s, compile included (reported apart), and its kept policy scores >= 0.50 on an
+independent 65,536-state draw. Cases:
+
+- the default (:data:`~jaxloco.learning.WARM_START`: 50 iterations of Algorithm 1's FAST
+  preset, then the pathwise refinement of :mod:`jaxloco.learning.refine`), and the same
+  again to check that a seed reproduces it;
+- Algorithm 1 alone (FAST, its full budget), and as the baseline the paper's exact
+  Algorithm 1 configuration (plain summed updates, alpha = beta = 3e-5) with that budget;
+- the refinement alone (no Algorithm 1);
+- Brax's PPO on :class:`~jaxloco.learning.brax_env.StepEnv` (:mod:`jaxloco.learning.ppo`);
+- the one-step look-ahead search over the action grid, as a reference (no training).
+
+The kept weights are chosen on the training evaluator's draw (2048 states), so each policy
+is also scored on two independent draws: 4096 states (the seed ``jaxloco policy-eval``
+uses) and 65,536 states (one standard error 0.002). Without ``--quick`` each trained policy
+also walks Fig. 11's steering schedule on the full robot (MuJoCo C, walking WBLC) and runs
+the default 64-push grid sweep (``jaxloco push-sweep task=grid``, 2 workers); the table
+gives whether the walk completed and how many pushes were recovered. And the RBF network's
+local read-out is timed against the dense one.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import functools
 import resource
+import tempfile
 import time
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from _common import (
     compile_seconds,
     parse_args,
@@ -34,25 +48,31 @@ from _common import (
 
 from jaxloco.learning import (
     FAST,
+    WARM_START,
     ActorCriticConfig,
     RefineConfig,
     TrainConfig,
     mean_policy,
     rbf,
+    save_checkpoint,
     survival_basin,
     train,
 )
 from jaxloco.learning import policy as pol
 from jaxloco.learning.actor_critic import init_train_state
+from jaxloco.learning.ppo import PPOConfig, save_ppo_checkpoint, train_ppo
 from jaxloco.learning.training import params_fingerprint
+from jaxloco.planner import PSPParams, make_lookahead_policy, turn_schedule
 from jaxloco.runtime import watchdog
 
 THRESHOLDS = (0.30, 0.40, 0.50)
+FIG11 = ((12, 18.8), (5, 0.0), (12, -18.8))
+"""Fig. 11's steering schedule: (steps, deg per step)."""
 
 
-def time_to_basin(result, threshold):
-    for row in result.history:
-        if row.get("basin", -1.0) >= threshold:
+def time_to_basin(history, threshold):
+    for row in history:
+        if (row.get("basin") or -1.0) >= threshold:
             return row["wall_s"]
     return None
 
@@ -63,11 +83,17 @@ HELD_OUT_SEED, HELD_OUT_STATES = 2024, 4096
 LARGE_SEED, LARGE_STATES = 7, 65536
 
 
-@functools.partial(jax.jit, static_argnums=(1, 2))
-def independent_basin(params, seed, num_states):
-    grid, psp = TrainConfig().grid, TrainConfig().planner
-    key = jax.random.PRNGKey(seed)
-    return survival_basin(mean_policy(params, grid, psp), psp, key, num_states)[0]
+def independent_basins(policy) -> dict:
+    """Survival basins of a deterministic policy ``(3,) -> (3,)`` on the two draws."""
+    psp = PSPParams()
+    out = {}
+    for name, seed, n in (
+        ("held_out_basin", HELD_OUT_SEED, HELD_OUT_STATES),
+        ("large_draw_basin", LARGE_SEED, LARGE_STATES),
+    ):
+        basin = jax.jit(lambda key, n=n: survival_basin(policy, psp, key, n)[0])
+        out[name] = float(basin(jax.random.PRNGKey(seed)))
+    return out
 
 
 def run_training(name, config):
@@ -86,8 +112,7 @@ def run_training(name, config):
         refine_iterations=len(ref.history) if ref is not None else 0,
         actor_critic_basin=result.actor_critic_basin,
         best_basin=result.best_basin,
-        held_out_basin=float(independent_basin(result.best_params, HELD_OUT_SEED, HELD_OUT_STATES)),
-        large_draw_basin=float(independent_basin(result.best_params, LARGE_SEED, LARGE_STATES)),
+        **independent_basins(mean_policy(result.best_params, config.grid, config.planner)),
         total_s=total,
         compile_s=sum(stage.compile_seconds for stage in stages),
         train_s=sum(stage.train_seconds for stage in stages),
@@ -100,8 +125,59 @@ def run_training(name, config):
         fingerprint=params_fingerprint(result.best_params),
     )
     for th in THRESHOLDS:
-        row[f"t_basin_{int(th * 100)}"] = time_to_basin(result, th)
+        row[f"t_basin_{int(th * 100)}"] = time_to_basin(result.history, th)
     return row, result
+
+
+def run_ppo(name, config: PPOConfig):
+    """Brax's PPO; its history rows carry the basin and wall time like training's."""
+    t0 = time.perf_counter()
+    result = train_ppo(config, progress=False)
+    total = time.perf_counter() - t0
+    row = dict(
+        case=name,
+        best_basin=result.best_basin,
+        **independent_basins(result.planner.policy),
+        total_s=total,
+        transitions_per_s=result.history[-1]["env_steps"] / total,
+    )
+    for th in THRESHOLDS:
+        row[f"t_basin_{int(th * 100)}"] = time_to_basin(result.history, th)
+    return row, result
+
+
+def run_lookahead():
+    """The search policy (no training): its basins, and the time they took."""
+    t0 = time.perf_counter()
+    row = dict(
+        case="look-ahead search, 9 x 9 x 11 action grid (reference; no training)",
+        **independent_basins(make_lookahead_policy(PSPParams())),
+    )
+    row["eval_s"] = time.perf_counter() - t0
+    return row
+
+
+def robot_trials(checkpoint, run_dir) -> dict:
+    """How a policy walks the full robot: Fig. 11's steering schedule (completed or not)
+    and the default 64-push grid sweep (recovered pushes), both on MuJoCo C."""
+    from jaxloco.dynamics.model import load_valkyrie
+    from jaxloco.learning import load_planner
+    from jaxloco.locomotion import make_walking_controller
+    from jaxloco.sim.scenarios import simulate_walk
+    from jaxloco.sweep import SweepSpec, run_sweep
+
+    model = load_valkyrie()
+    ctrl = make_walking_controller(model, planner=load_planner(checkpoint))
+    turns = turn_schedule(FIG11)
+    steps = len(turns) + 2
+    walk = simulate_walk(model, ctrl, 40.0, turns=turns, max_steps=steps)
+    sweep = run_sweep(SweepSpec(), run_dir, workers=2, progress=False, planner=str(checkpoint))
+    recovered = np.asarray(sweep.outcomes["recovered"])
+    return {
+        "fig11": "yes" if (not walk.fell and walk.steps_taken >= steps) else "no",
+        "fig11_steps": walk.steps_taken,
+        "grid_recovered": f"{int(recovered.sum())}/{recovered.size}",
+    }
 
 
 def bench_features(n, repeats):
@@ -134,56 +210,70 @@ def bench_features(n, repeats):
 
 def main():
     args = parse_args(__doc__.splitlines()[0])
-    max_iterations = 60 if args.quick else FAST.max_iterations
-    refine_iterations = 50 if args.quick else RefineConfig().iterations
-    # The default exactly as `jaxloco train-planner` runs it (evaluation every 25 iterations).
-    default = TrainConfig(
-        actor_critic=dataclasses.replace(FAST, max_iterations=max_iterations),
-        refine=RefineConfig(iterations=refine_iterations),
-    )
-    fast = dataclasses.replace(default, refine=RefineConfig(iterations=0))
-    paper = TrainConfig(
+    ac_iterations = 60 if args.quick else FAST.max_iterations
+    default = TrainConfig()  # exactly what `jaxloco train-planner` runs
+    algorithm1 = TrainConfig(
+        actor_critic=dataclasses.replace(FAST, max_iterations=ac_iterations),
         refine=RefineConfig(iterations=0),
+    )
+    paper = dataclasses.replace(
+        algorithm1,
         actor_critic=dataclasses.replace(
             ActorCriticConfig(),
             episodes_per_iteration=FAST.episodes_per_iteration,
             max_episode_steps=FAST.max_episode_steps,
-            max_iterations=max_iterations,
+            max_iterations=ac_iterations,
         ),
     )
-    with watchdog(args.timeout, "bench_learning"):
-        rows = []
-        default_row, _ = run_training(
-            f"default: FAST ({max_iterations} it. or spread < {FAST.spread_target}), "
-            f"then {refine_iterations} refinement steps",
+    refine_alone = TrainConfig(
+        actor_critic=dataclasses.replace(FAST, max_iterations=0),
+        refine=RefineConfig(iterations=100 if args.quick else 300),
+    )
+    ppo = PPOConfig(num_timesteps=1_000_000, num_evals=6) if args.quick else PPOConfig()
+    with watchdog(args.timeout, "bench_learning"), tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        rows, checkpoints = [], {}
+        default_row, default_run = run_training(
+            f"default: FAST for {WARM_START.max_iterations} it., then "
+            f"{default.refine.iterations} refinement steps (horizon {default.refine.horizon})",
             default,
         )
         rows.append(default_row)
-        rows.append(run_training("FAST preset, Algorithm 1 alone", fast)[0])
-        # The fastest route: no Algorithm 1, refinement (2-step rollouts) from the initial
-        # weights (every mean at the nominal action).
-        untrained = dataclasses.replace(
-            default,
-            actor_critic=dataclasses.replace(FAST, max_iterations=0),
-            refine=RefineConfig(iterations=50 if args.quick else 100, horizon=2),
+        checkpoints["default"] = save_checkpoint(tmp / "default", default_run.best_params, default)
+        a1_row, a1_run = run_training(
+            f"Algorithm 1 alone: FAST, {ac_iterations} it. or spread < {FAST.spread_target}",
+            algorithm1,
         )
+        rows.append(a1_row)
+        checkpoints["algorithm1"] = save_checkpoint(tmp / "a1", a1_run.best_params, algorithm1)
         rows.append(
             run_training(
-                f"refinement alone, horizon 2, {untrained.refine.iterations} steps "
-                "(no Algorithm 1)",
-                untrained,
+                f"refinement alone, {refine_alone.refine.iterations} steps (no Algorithm 1)",
+                refine_alone,
             )[0]
         )
         rows.append(run_training("paper's Algorithm 1 config, same budget (baseline)", paper)[0])
+        ppo_row, ppo_run = run_ppo(
+            f"PPO (Brax), {ppo.num_timesteps:.3g} env steps, {ppo.num_envs} envs", ppo
+        )
+        rows.append(ppo_row)
+        checkpoints["ppo"] = save_ppo_checkpoint(tmp / "ppo", ppo_run.planner)
+        rows.append(run_lookahead())
         again, _ = run_training("default again (same seed)", default)
         reproducible = again["fingerprint"] == default_row["fingerprint"]
+        if not args.quick:
+            for row, key in zip(
+                rows[:2] + [ppo_row], ("default", "algorithm1", "ppo"), strict=True
+            ):
+                row.update(robot_trials(checkpoints[key], tmp / f"sweep_{key}"))
         features, feature_diff = bench_features(2048 if args.quick else 16384, 5)
     peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
 
     tables = []
     tables.append(
         print_table(
-            "RL-PSP training (basin on 2048 uniform box states, 50 steps, every 25 iterations)",
+            "Step-policy learners (basin: share of the Eq. 1 box surviving 50 steps; the "
+            "training evaluator's draw has 2048 states, evaluated every 25 iterations)",
             rows,
             [
                 ("case", "case", "s"),
@@ -203,6 +293,8 @@ def main():
                 ("refine_step_ms", "ms/refine", ".0f"),
                 ("transitions_per_s", "steps/s", ".3g"),
                 ("live_transitions_per_s", "live steps/s", ".3g"),
+                ("fig11", "Fig. 11 walk", "s"),
+                ("grid_recovered", "grid pushes", "s"),
             ],
         )
     )

@@ -92,6 +92,9 @@ class PushSweepConfig(RunConfig):
     the walking preset's (``presets.WALKING_INVERSES``)."""
     torque_pinv_rtol: float = 1e-8
     """The rank threshold of Eq. 19's torque solve (``WBLCConfig.torque_pinv_rtol``)."""
+    planner: str = ""
+    """A step-policy checkpoint folder (``jaxloco train-planner`` writes one); empty: the
+    shipped default. Use a new run directory for another policy."""
     gains_file: str = ""
     """A tuned gains file (``tune-gains``, ``tune-push``): its WBLC gains and its gait
     section (e.g. ``replan_gamma``) replace the defaults. Use a new run directory for it."""
@@ -109,6 +112,7 @@ def controller_settings(cfg) -> dict:
     """The walking controller under test: gait, physics and WBLC config (tuned gains
     applied)."""
     return {
+        "planner": cfg.planner or None,
         "gait": apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file),
         "physics": to_params(PhysicsParams, cfg.physics),
         "wblc": apply_gains_file(

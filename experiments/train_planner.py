@@ -1,11 +1,12 @@
 """Train the RL-PSP step policy (Algorithm 1, batched; then refined through the
 differentiable planner) and save it with its learning curve.
 
-    jaxloco train-planner                              # the FAST preset, then refinement
-    jaxloco train-planner refine.iterations=0          # Algorithm 1 alone, as the paper
+    jaxloco train-planner              # 50 Algorithm 1 iterations (FAST), then refinement
+    # Algorithm 1 alone, as the paper (the FAST preset's full budget)
+    jaxloco train-planner refine.iterations=0 actor_critic.max_iterations=600
     jaxloco train-planner actor_critic.max_iterations=400 actor_critic.seed=3
-    # the fast route (< 10 s here): no Algorithm 1, refinement from the initial weights
-    jaxloco train-planner actor_critic.max_iterations=0 refine.horizon=2 refine.iterations=100
+    # no Algorithm 1: refinement from the initial weights (the value stays untrained)
+    jaxloco train-planner actor_critic.max_iterations=0 refine.iterations=300
     jaxloco train-planner hydra.run.dir=runs/planner   # choose the output folder
     jaxloco train-planner resume_from=runs/planner/checkpoint
     jaxloco train-planner method=ppo                   # Brax's PPO baseline instead
@@ -28,7 +29,7 @@ import hydra
 from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.learning import (
-    FAST,
+    WARM_START,
     ActorCriticConfig,
     EpisodeTurns,
     EvalConfig,
@@ -47,7 +48,7 @@ from jaxloco.runtime import write_json
 from jaxloco.viz.learning import plot_learning_curve, plot_ppo_curve
 
 log = logging.getLogger(__name__)
-ActorCriticSchema = config_schema(ActorCriticConfig, FAST)
+ActorCriticSchema = config_schema(ActorCriticConfig, WARM_START)
 GridSchema = config_schema(RBFGrid)
 StartsSchema = config_schema(StartStates)
 PlannerSchema = config_schema(PSPParams)

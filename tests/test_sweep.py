@@ -90,6 +90,9 @@ def test_store_resumes_and_refuses_another_sweep(tmp_path):
 
 
 def test_the_settings_of_a_job_decide_whether_a_run_directory_is_the_same_sweep(tmp_path):
+    import shutil
+
+    from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
     from jaxloco.locomotion import GaitParams
     from jaxloco.sim.mjx_loop import PhysicsParams
     from jaxloco.sweep import SweepJob
@@ -105,8 +108,15 @@ def test_the_settings_of_a_job_decide_whether_a_run_directory_is_the_same_sweep(
         job.replace(chunk_size=3),
         job.replace(qvel_noise=0.01),
         job.replace(x64=True),
+        job.replace(planner=str(assets_dir() / SHIPPED_POLICIES["refined"])),
     ):
         assert changed.settings_digest() != job.settings_digest()
+    # The policy counts by its contents: the shipped default copied elsewhere is the same.
+    copy = tmp_path / "policy"
+    shutil.copytree(assets_dir() / SHIPPED_POLICIES["default"], copy)
+    assert job.replace(planner=str(copy)).settings_digest() == job.settings_digest()
+    with pytest.raises(FileNotFoundError, match="no planner checkpoint"):
+        job.replace(planner=str(tmp_path / "none")).settings_digest()
     with pytest.raises(ValueError, match="SweepJob.backend"):
         job.replace(backend="gpu")
     with pytest.raises(ValueError, match="SweepJob.chunk_size"):

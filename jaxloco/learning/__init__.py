@@ -22,7 +22,15 @@ from jaxloco.learning.evaluation import (
 from jaxloco.learning.rbf import RBFGrid
 from jaxloco.learning.refine import RefineConfig, RefineResult, refine
 from jaxloco.learning.starts import EpisodeTurns, StartStates
-from jaxloco.learning.training import FAST, STEERING, EvalConfig, TrainConfig, TrainResult, train
+from jaxloco.learning.training import (
+    FAST,
+    STEERING,
+    WARM_START,
+    EvalConfig,
+    TrainConfig,
+    TrainResult,
+    train,
+)
 
 __all__ = [
     "FAST",
@@ -38,6 +46,7 @@ __all__ = [
     "TrainConfig",
     "TrainResult",
     "TrainState",
+    "WARM_START",
     "init_train_state",
     "load_checkpoint_config",
     "load_planner",

@@ -41,10 +41,11 @@ from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
 
 DEFAULT_POLICY = "policies/rl_psp"
 SHIPPED_POLICIES = {"default": DEFAULT_POLICY, "refined": "policies/rl_psp_refined"}
-"""Policies in ``assets/``. ``default``: Algorithm 1 alone (``jaxloco train-planner
-refine.iterations=0``); the walking controller uses it. ``refined``: the same weights
-refined through the planner (``jaxloco train-planner``): a larger survival basin, but on
-the full robot it falls on Fig. 11's steering walk, which the default walks through
+"""Policies in ``assets/``. ``default``: Algorithm 1 alone, as the paper (``jaxloco
+train-planner refine.iterations=0 actor_critic.max_iterations=600``); the walking
+controller uses it. ``refined``: the same weights refined through the planner (600 + 300
+steps at horizon 4): a larger survival basin, and it walks Fig. 11's steering schedule on
+the full robot, but over the push-limit search it recovers less than the default
 (docs/learning.md)."""
 FORMAT_VERSION = 1
 PPO_PARAMS_FILE = "ppo_params.msgpack"
@@ -189,6 +190,22 @@ def load_planner(path=None, shipped: str = "default") -> LearnedPlanner | PPOPla
         )
     config, _ = load_checkpoint_config(path)
     return LearnedPlanner(load_params(path, config), config.grid, config.planner)
+
+
+def checkpoint_digest(path=None, shipped: str = "default") -> str:
+    """A short SHA-256 of the files a planner is loaded from (``path``, or the shipped
+    policy ``shipped``): the same digest means the same policy, wherever it lies."""
+    import hashlib
+
+    path = Path(path) if path is not None else assets_dir() / SHIPPED_POLICIES[shipped]
+    h = hashlib.sha256()
+    for name in ("config.json", "weights.npz", PPO_PARAMS_FILE):
+        if (path / name).exists():
+            h.update(name.encode())
+            h.update((path / name).read_bytes())
+    if h.digest() == hashlib.sha256().digest():
+        raise FileNotFoundError(f"no planner checkpoint at {path}")
+    return h.hexdigest()[:16]
 
 
 def _json_default(obj):

@@ -23,6 +23,7 @@ from tqdm.auto import tqdm
 
 from jaxloco.control.presets import walking_config
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
+from jaxloco.learning.checkpoint import load_planner
 from jaxloco.locomotion import make_walking_controller
 from jaxloco.sim.mjx_loop import physics_model
 from jaxloco.sim.push import PushArrays, body_index
@@ -112,7 +113,10 @@ class ChunkRunner:
         self.sim_model = physics_model(self.model, job.physics)
         body = body_index(self.model, job.push_body)
         self.ctrl = make_walking_controller(
-            self.model, config=job.wblc or walking_config(), gait=job.gait
+            self.model,
+            config=job.wblc or walking_config(),
+            gait=job.gait,
+            planner=load_planner(job.planner),
         )
         self.horizon_steps = int(round(job.horizon / self.model.opt.timestep))
         self.snapshots: dict = {}

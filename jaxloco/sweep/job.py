@@ -17,6 +17,7 @@ from pathlib import Path
 
 from jaxloco import validation as v
 from jaxloco.control.wblc import WBLCConfig
+from jaxloco.learning.checkpoint import checkpoint_digest
 from jaxloco.locomotion import GaitParams
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep.spec import SweepSpec
@@ -59,6 +60,10 @@ class SweepJob:
     """JAX's persistent compilation cache, so workers load the compiled tick."""
     nthread: int | None = None
     """Threads of the C backend's physics batch (None: all cores of the process)."""
+    planner: str | None = None
+    """The step policy: a checkpoint folder (:func:`~jaxloco.learning.load_planner`); None:
+    the shipped default. Outcomes depend on its contents, not on its path
+    (:meth:`outcome_settings`)."""
 
     def __post_init__(self):
         v.check_fields(
@@ -95,6 +100,7 @@ class SweepJob:
         keep = dataclasses.asdict(self)
         for k in ("run_dir", "walks_dir", "cache_dir", "nthread"):
             keep.pop(k)
+        keep["planner"] = checkpoint_digest(self.planner)
         return json.loads(json.dumps(keep, default=str))
 
     def settings_digest(self) -> str:

@@ -378,6 +378,7 @@ def run_limit_search(
     address: str | None = None,
     config: dict | None = None,
     progress: bool = True,
+    planner: str | None = None,
 ) -> LimitResult:
     """:func:`search_limits` on the walking controller: every round a sweep
     (:func:`~jaxloco.sweep.run.run_table`) on one set of workers kept for the whole search
@@ -396,6 +397,7 @@ def run_limit_search(
         fall_height=search.fall_height,
     )
     job = make_job(spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body)
+    job = job.replace(planner=None if planner is None else str(planner))
     per_round = len(search.cells()) * search.replicas
     if workers == 0:
         workers = _auto_workers(backend, per_round * search.horizon)

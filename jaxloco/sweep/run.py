@@ -62,6 +62,7 @@ def run_sweep(
     max_chunks: int | None = None,
     workers: int = 1,
     address: str | None = None,
+    planner: str | None = None,
 ) -> SweepResult:
     """Run (or resume) the sweep ``spec`` into ``run_dir``.
 
@@ -72,8 +73,10 @@ def run_sweep(
     :class:`PhysicsParams`).
     ``wblc``: the controller's WBLC configuration (default: the walking preset).
     ``workers``/``address``: where the chunks run (:func:`run_table`).
+    ``planner``: the step policy's checkpoint folder (None: the shipped default).
     """
     job = make_job(spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body, nthread)
+    job = job.replace(planner=None if planner is None else str(planner))
     manifest = {"spec_digest": spec.digest(), "spec": dataclasses.asdict(spec)}
     return run_table(expand(spec), job, config, progress, max_chunks, workers, address, manifest)
 
