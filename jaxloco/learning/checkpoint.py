@@ -32,7 +32,7 @@ from jaxloco.learning.actor_critic import (
     TrainState,
     init_train_state,
 )
-from jaxloco.learning.evaluation import mean_policy
+from jaxloco.learning.evaluation import mean_policy, over_states
 from jaxloco.learning.refine import RefineConfig
 from jaxloco.learning.starts import EpisodeTurns, StartStates
 from jaxloco.learning.training import EvalConfig, TrainConfig
@@ -136,7 +136,7 @@ class LearnedPlanner:
 
     def mean_action(self, state):
         """Mean actions for apex states ``(..., 3)`` (jittable, batched over leading axes)."""
-        return _batched(self.policy, state)
+        return over_states(self.policy, state)
 
     def value(self, state):
         """Learned value ``v(s)`` for apex states ``(..., 3)``: the paper's walking risk."""
@@ -145,7 +145,7 @@ class LearnedPlanner:
             table, bias = self.params.table[..., pol.VALUE], self.params.bias[pol.VALUE]
             return rbf.evaluate(table, bias, rbf.local_features(self.grid, s))[0]
 
-        return _batched(one, state)
+        return over_states(one, state)
 
     def spread(self, state):
         """Policy spreads ``(..., 3)`` (how sure the policy is)."""
@@ -154,16 +154,7 @@ class LearnedPlanner:
             _, _, log_spread = pol.network_outputs(self.params, rbf.local_features(self.grid, s))
             return jnp.exp(log_spread)
 
-        return _batched(one, state)
-
-
-def _batched(fn, state):
-    state = jnp.asarray(state)
-    if state.shape[-1:] != (3,):
-        raise ValueError(f"apex states must have shape (..., 3); got {state.shape}")
-    flat = state.reshape(-1, 3)
-    out = jax.vmap(fn)(flat)
-    return out.reshape(*state.shape[:-1], *out.shape[1:])
+        return over_states(one, state)
 
 
 def load_planner(path=None, shipped: str = "default") -> LearnedPlanner | PPOPlanner:

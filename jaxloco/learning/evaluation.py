@@ -33,6 +33,16 @@ def mean_weights_policy(table, bias, grid: rbf.RBFGrid, psp: PSPParams):
     return policy
 
 
+def over_states(fn, state):
+    """``fn`` of one apex state ``(3,) -> (...)`` applied over apex states ``(..., 3)``
+    (vmapped over the flattened leading axes)."""
+    state = jnp.asarray(state)
+    if state.shape[-1:] != (3,):
+        raise ValueError(f"apex states must have shape (..., 3); got {state.shape}")
+    out = jax.vmap(fn)(state.reshape(-1, 3))
+    return out.reshape(*state.shape[:-1], *out.shape[1:])
+
+
 def value_function(params: pol.ActorCriticParams, grid: rbf.RBFGrid):
     """The learned value ``state (3,) -> v(s)`` (the paper's walking-risk indicator)."""
 

@@ -30,7 +30,7 @@ from jaxloco import validation as v
 from jaxloco.config import to_params
 from jaxloco.learning.brax_env import StepEnv
 from jaxloco.learning.checkpoint import PPO_PARAMS_FILE
-from jaxloco.learning.evaluation import survival_basin
+from jaxloco.learning.evaluation import over_states, survival_basin
 from jaxloco.learning.starts import StartStates
 from jaxloco.planner import PSPParams
 
@@ -163,7 +163,7 @@ class PPOPlanner:
 
     def mean_action(self, state):
         """Deterministic actions for apex states ``(..., 3)`` (jittable, batched)."""
-        return _batched(self.policy, state)
+        return over_states(self.policy, state)
 
     def value(self, state):
         """The learned value ``v(s)`` for apex states ``(..., 3)``."""
@@ -174,15 +174,7 @@ class PPOPlanner:
                 self.params.normalizer, self.params.value, s.astype(jnp.float32)
             )
 
-        return _batched(one, state)
-
-
-def _batched(fn, state):
-    state = jnp.asarray(state)
-    if state.shape[-1:] != (3,):
-        raise ValueError(f"apex states must have shape (..., 3); got {state.shape}")
-    out = jax.vmap(fn)(state.reshape(-1, 3))
-    return out.reshape(*state.shape[:-1], *out.shape[1:])
+        return over_states(one, state)
 
 
 @dataclasses.dataclass
