@@ -214,3 +214,24 @@ def test_policy_eval_cli_ci_sized(tmp_path):
     assert all(v > 0 for v in summary["decision_time_us"].values())
     for name in ("fig6_pushed_steps.png", "value_map.png", "basins.md"):
         assert (run / name).stat().st_size > 0
+
+
+def test_train_planner_cli_defaults_are_the_library_defaults():
+    """``jaxloco train-planner`` with no overrides trains ``TrainConfig()``, the
+    configuration ``bench_learning.py`` times against the 10 s target."""
+    import importlib.util
+
+    from omegaconf import OmegaConf
+
+    from jaxloco.cli import experiments_dir
+
+    spec = importlib.util.spec_from_file_location(
+        "train_planner_app", experiments_dir() / "train_planner.py"
+    )
+    app = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(app)
+    cfg = OmegaConf.structured(app.TrainPlannerConfig)
+    assert app.build_config(cfg) == TrainConfig()
+    assert cfg.method == "rl_psp"
+    cfg.refine.iterations = 7
+    assert app.build_config(cfg).refine.iterations == 7  # overrides reach the config
