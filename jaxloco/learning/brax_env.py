@@ -27,6 +27,14 @@ BOX_STARTS = StartStates(pushed_fraction=0.0)
 """Starts drawn uniformly from the box of Eq. 1: the states the survival basin measures."""
 
 
+def box_action(unit_action, psp: PSPParams):
+    """Map ``(..., 3)`` actions in Brax's ``[-1, 1]`` cube affinely onto ``psp``'s action box
+    (Eq. 2); actions outside the cube are clipped to it first."""
+    low, high = jnp.asarray(psp.action_low), jnp.asarray(psp.action_high)
+    u = jnp.clip(unit_action, -1.0, 1.0)
+    return low + 0.5 * (u + 1.0) * (high - low)
+
+
 class StepEnv(Env):
     """The PSP step MDP (see the module docstring). ``metrics``: ``safe_steps`` (1 per safe
     step), ``p_x``, ``p_y`` (m), ``t_switch`` (s) of the last step."""
@@ -34,13 +42,10 @@ class StepEnv(Env):
     def __init__(self, psp: PSPParams = PSPParams(), starts: StartStates = BOX_STARTS):
         self.psp = psp
         self.starts = starts
-        self._low = jnp.asarray(psp.action_low)
-        self._high = jnp.asarray(psp.action_high)
 
     def to_action(self, unit_action):
-        """Map ``(..., 3)`` actions in ``[-1, 1]`` onto the action box (clipped there)."""
-        u = jnp.clip(unit_action, -1.0, 1.0)
-        return self._low + 0.5 * (u + 1.0) * (self._high - self._low)
+        """:func:`box_action` on this task's action box."""
+        return box_action(unit_action, self.psp)
 
     def reset(self, rng: jax.Array) -> State:
         apex = training_starts(rng, 1, self.psp, self.starts)[0]

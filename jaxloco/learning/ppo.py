@@ -28,7 +28,7 @@ from flax import serialization, struct
 
 from jaxloco import validation as v
 from jaxloco.config import to_params
-from jaxloco.learning.brax_env import StepEnv
+from jaxloco.learning.brax_env import StepEnv, box_action
 from jaxloco.learning.checkpoint import PPO_PARAMS_FILE
 from jaxloco.learning.evaluation import over_states, survival_basin
 from jaxloco.learning.starts import StartStates
@@ -159,7 +159,7 @@ class PPOPlanner:
             self.params.normalizer, self.params.policy, state.astype(jnp.float32)
         )
         unit = networks.parametric_action_distribution.mode(logits)
-        return StepEnv(self.psp).to_action(unit).astype(state.dtype)
+        return box_action(unit, self.psp).astype(state.dtype)
 
     def mean_action(self, state):
         """Deterministic actions for apex states ``(..., 3)`` (jittable, batched)."""
