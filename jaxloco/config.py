@@ -32,6 +32,13 @@ def config_schema(params_cls: type, defaults=None) -> type:
     for f in dataclasses.fields(params_cls):
         hint = hints[f.name]
         default = f.default if defaults is None else getattr(defaults, f.name)
+        if (
+            typing.get_origin(hint) is typing.Union
+            and len(set(typing.get_args(hint)) - {type(None)}) > 1
+        ):
+            # OmegaConf's unions refuse an int for a float (``=300``): any value here, and
+            # the class's own validation in to_params.
+            hint = typing.Any
         if typing.get_origin(hint) is tuple:
             # OmegaConf has no tuples: a list in the config, a tuple again in to_params.
             args = set(typing.get_args(hint)) - {Ellipsis}

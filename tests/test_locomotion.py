@@ -410,7 +410,7 @@ def test_push_arrays_from_config_pairs():
 
 def test_physics_params_torque_limit_clips_every_actuator():
     model = load_valkyrie()
-    own = mjx_loop.physics_model(model, mjx_loop.PhysicsParams(torque_limit=None))
+    own = mjx_loop.physics_model(model, mjx_loop.PhysicsParams(torque_limit="model"))
     np.testing.assert_array_equal(own.actuator_ctrlrange, model.actuator_ctrlrange)
     authors = mjx_loop.physics_model(model, mjx_loop.PhysicsParams(torque_limit=500.0))
     np.testing.assert_allclose(authors.actuator_ctrlrange, [[-500.0, 500.0]] * model.nu)
@@ -421,6 +421,11 @@ def test_physics_params_torque_limit_clips_every_actuator():
     np.testing.assert_allclose(data.actuator_force, 500.0)
     with pytest.raises(ValueError, match="torque_limit"):
         mjx_loop.PhysicsParams(torque_limit=0.0)
+    with pytest.raises(ValueError, match="torque_limit must be > 0 N m, or 'model'"):
+        mjx_loop.PhysicsParams(torque_limit="modle")
+    # One spelling per setting, so equal settings give equal sweep digests.
+    assert mjx_loop.PhysicsParams(torque_limit=None).torque_limit == "model"
+    assert mjx_loop.PhysicsParams(torque_limit=300).torque_limit == 300.0
 
 
 # --- closed loop ------------------------------------------------------------------------

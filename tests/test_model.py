@@ -8,14 +8,12 @@ import numpy as np
 import pytest
 
 from jaxloco.dynamics.model import (
-    CONTACT_SITES,
-    COP_SITES,
-    VALKYRIE_JOINTS,
     assets_dir,
     keyframe_qpos,
     load_model,
     load_valkyrie,
 )
+from jaxloco.robots.valkyrie import CONTACT_SITES, COP_SITES, VALKYRIE_JOINTS
 
 EFFORT = {
     "hipYaw": 190,

@@ -1,5 +1,5 @@
 """The whole-body locomotion controller (paper Section III): tasks, the prioritised
-hierarchy, the contact-force QP, torques, and the Valkyrie presets."""
+hierarchy, the contact-force QP, torques, and the presets built from a robot description."""
 
 from jaxloco.control.force_qp import ForceQPParams, ForceQPSolution, solve_contact_forces
 from jaxloco.control.gains import apply_gains_file, load_gains, save_gains, with_gains

@@ -1,13 +1,14 @@
-"""WBLC configurations for the Valkyrie model: the paper's task sets as data.
+"""WBLC configurations built from a :class:`~jaxloco.robots.RobotDescription`: the paper's
+task sets as data.
 
 - :func:`walking_config`: the walking hierarchy of Section V-B (CoM -> pelvis -> body ->
   swing-foot orientation -> swing-foot position -> neck and torso posture -> CAM -> arms).
 - :func:`body_shaking_config`: Section V-A's six tasks with Eq. 32's ``H1`` or ``H2``.
-- :func:`standing_config`: the walking task set in double support.
 
-Each starts with the contact constraint (see :mod:`jaxloco.control.wblc`). CoM gains are
-the authors' (from their code); the rest are ours, chosen so the
-robot stands and shakes stably at 1 kHz (the paper gives none).
+Each starts with the contact constraint (see :mod:`jaxloco.control.wblc`). Task names are
+the robot's foot names plus fixed suffixes (``left_contact``, ``left_foot_pos``...), so the
+same hierarchies name every robot's tasks. Default gains come from the description
+(:class:`~jaxloco.robots.TaskGains`).
 """
 
 from __future__ import annotations
@@ -15,50 +16,57 @@ from __future__ import annotations
 from jaxloco.control.force_qp import ForceQPParams
 from jaxloco.control.tasks import TaskSpec
 from jaxloco.control.wblc import FootSpec, WBLCConfig
-from jaxloco.dynamics.model import (
-    ARM_JOINTS,
-    CONTACT_SITES,
-    COP_SITES,
-    FEET,
-    NECK_JOINTS,
-    TORSO_JOINTS,
-    VALKYRIE_JOINTS,
-)
+from jaxloco.robots import DEFAULT_ROBOT, RobotDescription
 
-VALKYRIE_FEET = tuple(FootSpec(COP_SITES[side], CONTACT_SITES[side]) for side in FEET)
-ARMS = tuple(f"{side}_{j}" for side in FEET for j in ARM_JOINTS)
-NECK_TORSO = (*TORSO_JOINTS, *NECK_JOINTS)
-# Eq. 32's partial posture: every joint except shoulder pitch, shoulder roll and knee.
-PARTIAL_POSTURE = tuple(
-    j for j in VALKYRIE_JOINTS if not j.endswith(("shoulderPitch", "shoulderRoll", "knee"))
-)
+SIDES = ("left", "right")
+"""How the hierarchies name a robot's two feet (its ``feet`` in order)."""
 
 
-def valkyrie_tasks() -> tuple[TaskSpec, ...]:
-    """Every task the presets use, with default gains."""
-    contact = tuple(
-        TaskSpec(f"{side}_contact", "contact", frame=COP_SITES[side], kd=(10.0,)) for side in FEET
-    )
+def foot_task(k: int, suffix: str) -> str:
+    """The name of foot ``k``'s task (0: left, 1: right), e.g. ``left_foot_pos``."""
+    return f"{SIDES[k]}_{suffix}"
+
+
+def robot_feet(robot: RobotDescription) -> tuple[FootSpec, ...]:
+    return tuple(FootSpec(foot.frame, foot.points) for foot in robot.feet)
+
+
+def robot_tasks(robot: RobotDescription = DEFAULT_ROBOT) -> tuple[TaskSpec, ...]:
+    """Every task the presets use, with the robot's default gains."""
+    g = robot.gains
     feet = tuple(
         spec
-        for side in FEET
+        for k, foot in enumerate(robot.feet)
         for spec in (
-            TaskSpec(f"{side}_foot_ori", "orientation", COP_SITES[side], kp=(200.0,), kd=(30.0,)),
-            TaskSpec(f"{side}_foot_pos", "position", COP_SITES[side], kp=(400.0,), kd=(40.0,)),
+            _frame_task(foot_task(k, "foot_ori"), "orientation", foot.frame, g.foot_orientation),
+            _frame_task(foot_task(k, "foot_pos"), "position", foot.frame, g.foot_position),
         )
     )
-    return (
-        *contact,
-        TaskSpec("com", "com", kp=(50.0, 50.0, 220.0), kd=(15.0, 15.0, 10.0)),
-        TaskSpec("cam", "cam", kp=(5.0,)),
-        TaskSpec("pelvis_ori", "orientation", "pelvis", kp=(100.0,), kd=(20.0,)),
-        TaskSpec("body_ori", "orientation", "torso", kp=(100.0,), kd=(20.0,)),
-        *feet,
-        TaskSpec("neck_torso", "joints", joints=NECK_TORSO, kp=(100.0,), kd=(20.0,)),
-        TaskSpec("arms", "joints", joints=ARMS, kp=(100.0,), kd=(20.0,)),
-        TaskSpec("partial_posture", "joints", joints=PARTIAL_POSTURE, kp=(100.0,), kd=(20.0,)),
-        TaskSpec("full_posture", "joints", joints=VALKYRIE_JOINTS, kp=(100.0,), kd=(20.0,)),
+    joint_groups = (
+        ("neck_torso", robot.upper_body_joints),
+        ("arms", robot.arm_joints),
+        ("partial_posture", robot.partial_posture_joints),
+        ("full_posture", robot.joints),
     )
+    return (
+        *(
+            _frame_task(foot_task(k, "contact"), "contact", foot.frame, g.contact)
+            for k, foot in enumerate(robot.feet)
+        ),
+        TaskSpec("com", "com", kp=g.com.kp, kd=g.com.kd),
+        TaskSpec("cam", "cam", kp=g.cam.kp, kd=g.cam.kd),
+        _frame_task("pelvis_ori", "orientation", robot.base_frame, g.base_orientation),
+        _frame_task("body_ori", "orientation", robot.torso_frame, g.torso_orientation),
+        *feet,
+        *(
+            TaskSpec(name, "joints", joints=joints, kp=g.posture.kp, kd=g.posture.kd)
+            for name, joints in joint_groups
+        ),
+    )
+
+
+def _frame_task(name: str, kind: str, frame: str, pd) -> TaskSpec:
+    return TaskSpec(name, kind, frame=frame, kp=pd.kp, kd=pd.kd)
 
 
 CONTACT = "left_contact+right_contact"
@@ -78,14 +86,18 @@ H2 = (CONTACT, "com", "body_ori", "partial_posture", "pelvis_ori", "cam", "full_
 HIERARCHIES = {"walking": WALKING, "H1": H1, "H2": H2}
 
 
-def wblc_config(hierarchy: str | tuple[str, ...] = "walking", **overrides) -> WBLCConfig:
-    """A Valkyrie WBLC config; ``hierarchy`` is a preset name or a tuple of levels."""
+def wblc_config(
+    hierarchy: str | tuple[str, ...] = "walking",
+    robot: RobotDescription = DEFAULT_ROBOT,
+    **overrides,
+) -> WBLCConfig:
+    """A WBLC config for ``robot``; ``hierarchy`` is a preset name or a tuple of levels."""
     if isinstance(hierarchy, str):
         if hierarchy not in HIERARCHIES:
             raise ValueError(f"hierarchy: one of {sorted(HIERARCHIES)} or a tuple of levels")
         hierarchy = HIERARCHIES[hierarchy]
     return WBLCConfig(
-        tasks=valkyrie_tasks(), hierarchy=tuple(hierarchy), feet=VALKYRIE_FEET, **overrides
+        tasks=robot_tasks(robot), hierarchy=tuple(hierarchy), feet=robot_feet(robot), **overrides
     )
 
 
@@ -107,15 +119,17 @@ CLOSED_LOOP_QP = ForceQPParams(iterations=150, rho=0.02)
 WALKING_INVERSES = ("damped",) + ("truncated",) * (len(WALKING) - 2) + ("damped",)
 
 
-def walking_config(**overrides) -> WBLCConfig:
+def walking_config(robot: RobotDescription = DEFAULT_ROBOT, **overrides) -> WBLCConfig:
     """The walking hierarchy with the warm-started force QP settings (``CLOSED_LOOP_QP``)
     and damped inverses at its first and last levels (``WALKING_INVERSES``)."""
     overrides.setdefault("force_qp", CLOSED_LOOP_QP)
     overrides.setdefault("hierarchy_inverse", WALKING_INVERSES)
-    return wblc_config("walking", **overrides)
+    return wblc_config("walking", robot, **overrides)
 
 
-def body_shaking_config(which: str = "H2", **overrides) -> WBLCConfig:
+def body_shaking_config(
+    which: str = "H2", robot: RobotDescription = DEFAULT_ROBOT, **overrides
+) -> WBLCConfig:
     if which not in ("H1", "H2"):
         raise ValueError(f"body_shaking_config: which must be 'H1' or 'H2', got {which!r}")
-    return wblc_config(which, **overrides)
+    return wblc_config(which, robot, **overrides)

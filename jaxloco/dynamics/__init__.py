@@ -13,11 +13,10 @@ from jaxloco.dynamics.jacobians import (
     screw_axes,
     smooth,
 )
-from jaxloco.dynamics.model import VALKYRIE_JOINTS, keyframe_qpos, load_model, load_valkyrie
+from jaxloco.dynamics.model import keyframe_qpos, load_model, load_valkyrie
 from jaxloco.dynamics.terms import JointSpaceTerms, joint_space_terms
 
 __all__ = [
-    "VALKYRIE_JOINTS",
     "JointSpaceTerms",
     "body_motion",
     "com_jacobian",

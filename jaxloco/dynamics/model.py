@@ -1,10 +1,11 @@
-"""Loading the robot models shipped in ``assets/`` and naming their parts.
+"""Loading the robot models shipped in ``assets/``.
 
 The Valkyrie-like humanoid (``assets/valkyrie/valkyrie.xml``, written by
 ``assets/valkyrie/build_valkyrie.py`` from published figures): floating base + 28 joints in
 the paper's order, nq = 35, nv = 34, 135.9 kg; torque motors with the effort limits as
 control ranges; contacts only between each sole box and the floor; sites at each foot's
-centre of pressure and 4 contact corners. Keyframes ``zero`` (T-pose) and ``walk``.
+centre of pressure and 4 contact corners. Keyframes ``zero`` (T-pose) and ``walk``. Its
+names (joints, feet, frames) are in :mod:`jaxloco.robots.valkyrie`.
 """
 
 from __future__ import annotations
@@ -15,24 +16,6 @@ import mujoco
 import numpy as np
 
 from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
-
-LEG_JOINTS = ("hipYaw", "hipRoll", "hipPitch", "knee", "anklePitch", "ankleRoll")
-ARM_JOINTS = ("shoulderPitch", "shoulderRoll", "shoulderYaw", "elbowPitch", "forearmYaw")
-TORSO_JOINTS = ("torsoYaw", "torsoPitch", "torsoRoll")
-NECK_JOINTS = ("lowerNeckPitch", "neckYaw", "upperNeckPitch")
-
-# The paper's joint order (after the 6 floating-base velocities).
-VALKYRIE_JOINTS = (
-    *(f"left_{j}" for j in LEG_JOINTS),
-    *(f"right_{j}" for j in LEG_JOINTS),
-    *TORSO_JOINTS,
-    *(f"left_{j}" for j in ARM_JOINTS),
-    *NECK_JOINTS,
-    *(f"right_{j}" for j in ARM_JOINTS),
-)
-FEET = ("left", "right")
-CONTACT_SITES = {side: tuple(f"{side}_foot_contact{k}" for k in range(4)) for side in FEET}
-COP_SITES = {side: f"{side}_foot_cop" for side in FEET}
 
 
 def load_model(name_or_path: str) -> mujoco.MjModel:

@@ -17,13 +17,13 @@ import mujoco
 import numpy as np
 from flax import struct
 
-from jaxloco.control.presets import walking_config
+from jaxloco.control.presets import foot_task, walking_config
 from jaxloco.control.tasks import snapshot as robot_snapshot
 from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
-from jaxloco.dynamics.model import FEET
 from jaxloco.learning.checkpoint import LearnedPlanner, load_planner
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.gait import GaitParams, GaitState
+from jaxloco.robots import DEFAULT_ROBOT, RobotDescription, check_model
 
 ARM_TASK = "arms"
 """The joint-posture task of the arms (the walking hierarchy's last level)."""
@@ -49,6 +49,8 @@ class WalkingController:
     posture: dict
     """Hold references of the joint-posture tasks (the keyframe the robot starts in)."""
     foot_sites: tuple[int, int]
+    robot: RobotDescription
+    """The robot whose model this controller is for."""
 
     @property
     def psp(self):
@@ -100,13 +102,13 @@ class WalkingController:
             refs[name] = refs[name].replace(pos=body[0], vel=body[1], acc=body[2])
         refs[wblc.config.cam_task] = _cam_reference(self, snap, qpos, body)
         swing_ori = gait_lib.yaw_reference(*r.swing_yaw)
-        for k, side in enumerate(FEET):
+        for k in range(2):
             on = r.swinging[k]
-            pos_ref = refs[f"{side}_foot_pos"]
-            refs[f"{side}_foot_pos"] = pos_ref.replace(
+            pos_task, ori_task = foot_task(k, "foot_pos"), foot_task(k, "foot_ori")
+            refs[pos_task] = refs[pos_task].replace(
                 pos=r.swing[0], vel=r.swing[1], acc=r.swing[2], weight=on
             )
-            refs[f"{side}_foot_ori"] = refs[f"{side}_foot_ori"].replace(
+            refs[ori_task] = refs[ori_task].replace(
                 pos=swing_ori[0], vel=swing_ori[1], acc=swing_ori[2], weight=on
             )
         out = wblc(qpos, qvel, refs, r.contact, gains=gains, previous=state.qp, snap=snap)
@@ -169,16 +171,15 @@ def make_walking_controller(
     gait: GaitParams | None = None,
     planner: LearnedPlanner | None = None,
     keyframe_qpos=None,
+    robot: RobotDescription = DEFAULT_ROBOT,
 ) -> WalkingController:
-    """A walking controller for ``model`` (Valkyrie): WBLC ``config`` (default: the walking
-    hierarchy), gait numbers and the step ``planner`` (default: the shipped RL-PSP policy).
-    ``keyframe_qpos`` sets the joint postures the posture tasks hold (default: the model's
-    ``walk`` keyframe). The planner walks at ``gait.com_height`` (its ``psp.h`` is replaced
-    unless that is None)."""
-    from jaxloco.control.presets import VALKYRIE_FEET
-    from jaxloco.dynamics.model import keyframe_qpos as key_qpos
-
-    config = walking_config() if config is None else config
+    """A walking controller for ``model``, a model of ``robot``: WBLC ``config`` (default:
+    the robot's walking hierarchy), gait numbers and the step ``planner`` (default: the
+    shipped RL-PSP policy). ``keyframe_qpos`` sets the joint postures the posture tasks
+    hold (default: the robot's keyframe). The planner walks at ``gait.com_height`` (its
+    ``psp.h`` is replaced unless that is None)."""
+    check_model(robot, model)
+    config = walking_config(robot) if config is None else config
     gait = GaitParams() if gait is None else gait
     planner = load_planner() if planner is None else planner
     if gait.com_height is not None:
@@ -186,11 +187,8 @@ def make_walking_controller(
         # omega changes with the height, and the PSP plans with it at run time.
         planner = planner.replace(psp=dataclasses.replace(planner.psp, h=gait.com_height))
     wblc = make_wblc(model, config)
-    qpos0 = key_qpos(model, "walk") if keyframe_qpos is None else np.asarray(keyframe_qpos)
+    qpos0 = robot.keyframe_qpos(model) if keyframe_qpos is None else np.asarray(keyframe_qpos)
     # Jitted: op by op, the MJX kinematics behind it took 28.6 s (hundreds of small
     # compiles, each too small for the persistent cache), against 2.2 s jitted.
     posture = jax.jit(wblc.hold_references)(jnp.asarray(qpos0))
-    sites = tuple(
-        mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, foot.frame) for foot in VALKYRIE_FEET
-    )
-    return WalkingController(wblc, gait, planner, posture, sites)
+    return WalkingController(wblc, gait, planner, posture, robot.foot_sites(model), robot)

@@ -14,7 +14,7 @@ Physics settings: :func:`physics_model` returns an MJX model with the solver set
 the closed loop uses; the defaults (Newton, 100 iterations, 50 line-search iterations) are
 MJX's slowest; :class:`PhysicsParams` defaults to 2 iterations, 4 line-search steps and
 eulerdamp off, and clips every actuator at 500 N m as the paper's authors simulated
-(``torque_limit=None``: the model's own effort limits). ``tests/test_locomotion.py`` checks
+(``torque_limit="model"``: the model's own effort limits). ``tests/test_locomotion.py`` checks
 that MJX and MuJoCo's C engine, both at these settings, give the same walking motion (it
 does not compare against the defaults).
 """
@@ -24,7 +24,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Callable
-from typing import Optional
+from typing import Union
 
 import jax
 import jax.numpy as jnp
@@ -36,6 +36,9 @@ from mujoco import mjx
 from jaxloco import validation as v
 from jaxloco.sim.push import push_force
 
+MODEL_LIMITS = "model"
+"""``PhysicsParams.torque_limit``'s value for the model's own per-joint effort limits."""
+
 
 @dataclasses.dataclass(frozen=True)
 class PhysicsParams:
@@ -45,15 +48,19 @@ class PhysicsParams:
     iterations: int = 2
     ls_iterations: int = 4
     eulerdamp: bool = False
-    torque_limit: Optional[float] = 500.0  # noqa: UP045 (OmegaConf needs typing.Optional)
+    torque_limit: Union[float, str, None] = 500.0  # noqa: UP007 (OmegaConf needs typing.Union)
     """Every actuator clips at +-this (N m). The default is what the paper's authors
     simulated (their code bounded every joint at 500 N m; the paper names no limit).
-    None: the model's own limits, Valkyrie's published effort limits (26 N m at the neck,
-    150 at the torso pitch, 190 at the shoulders, up to 350 in the legs): a stricter
-    robot than the paper's, on which late-swing 520 N pushes fall in some directions
-    (the WBLC plans torques without limits and the actuators clip them)."""
+    ``"model"`` (or None): the model's own per-joint effort limits, for Valkyrie its
+    published ones (26 N m at the neck, 150 at the torso pitch, 190 at the shoulders, up to
+    350 in the legs): a stricter robot than the paper's."""
 
     def __post_init__(self):
+        limit = self.torque_limit
+        if limit is None:  # one spelling, so equal settings hash alike
+            object.__setattr__(self, "torque_limit", MODEL_LIMITS)
+        elif isinstance(limit, int) and not isinstance(limit, bool):
+            object.__setattr__(self, "torque_limit", float(limit))
         v.check_fields(
             self,
             [
@@ -61,8 +68,13 @@ class PhysicsParams:
                 v.integer(self, "ls_iterations", 1),
                 (
                     "torque_limit",
-                    self.torque_limit is None or self.torque_limit > 0,
-                    "> 0 N m (or None: the model's own limits)",
+                    self.torque_limit in (None, MODEL_LIMITS)
+                    or (
+                        isinstance(self.torque_limit, (int, float))
+                        and not isinstance(self.torque_limit, bool)
+                        and self.torque_limit > 0
+                    ),
+                    f"> 0 N m, or {MODEL_LIMITS!r}: the model's own effort limits",
                 ),
             ],
         )
@@ -78,8 +90,8 @@ def physics_model(model: mujoco.MjModel, params: PhysicsParams | None = None) ->
             model.opt.disableflags &= ~int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
         else:
             model.opt.disableflags |= int(mujoco.mjtDisableBit.mjDSBL_EULERDAMP)
-        if params.torque_limit is not None:
-            limit = params.torque_limit / model.actuator_gear[:, 0]
+        if params.torque_limit not in (None, MODEL_LIMITS):
+            limit = float(params.torque_limit) / model.actuator_gear[:, 0]
             model.actuator_ctrlrange[:] = np.stack([-limit, limit], axis=1)
             model.actuator_ctrllimited[:] = 1
     return model

@@ -13,7 +13,6 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxloco.dynamics.model import keyframe_qpos
 from jaxloco.locomotion.walking import WalkingController
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
 from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
@@ -41,7 +40,7 @@ def simulate_walk(
     progress: bool | str = False,
     step=None,
 ) -> WalkRun:
-    """Walk from the ``walk`` keyframe for ``duration`` s (or until ``max_steps`` steps have
+    """Walk from the robot's keyframe for ``duration`` s (or until ``max_steps`` steps have
     begun), turning by ``turns`` (rad per step) and pushed by ``pushes``.
 
     ``step``: ``jax.jit(ctrl.step)`` to reuse across runs (default: jitted here, so each
@@ -50,7 +49,7 @@ def simulate_walk(
         raise ValueError(f"duration must be > 0; got {duration}")
     sim_model = physics_model(model, physics) if physics is not None else model
     data = mujoco.MjData(sim_model)
-    data.qpos[:] = keyframe_qpos(model, "walk")
+    data.qpos[:] = ctrl.robot.keyframe_qpos(model)
     mujoco.mj_forward(sim_model, data)
     turns = None if turns is None or len(turns) == 0 else np.asarray(turns)
     state = ctrl.init(jnp.asarray(data.qpos), turns=turns)

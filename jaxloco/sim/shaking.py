@@ -1,4 +1,4 @@
-"""Body shaking (Fig. 10) on MuJoCo's C engine: Valkyrie in double support under WBLC, its
+"""Body shaking (Fig. 10) on MuJoCo's C engine: a humanoid in double support under WBLC, its
 body frame following :func:`~jaxloco.control.shaking.shaking_reference`.
 
 Used by ``experiments/body_shaking.py`` (H1 vs H2) and by gain tuning as its held-out
@@ -14,7 +14,7 @@ import numpy as np
 
 from jaxloco.control.shaking import ShakingParams, shaking_reference
 from jaxloco.control.wblc import WBLCConfig, make_wblc
-from jaxloco.dynamics.model import keyframe_qpos
+from jaxloco.robots import DEFAULT_ROBOT, RobotDescription
 from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
 
 
@@ -26,19 +26,24 @@ def simulate_shaking(
     fall_height: float = 0.7,
     progress: bool | str = False,
     gains: dict | None = None,
+    robot: RobotDescription = DEFAULT_ROBOT,
 ) -> ClosedLoopLog:
-    """Shake for ``duration`` s from the ``walk`` keyframe; logs ``body_error`` (rad),
+    """Shake ``robot`` for ``duration`` s from its keyframe; logs ``body_error`` (rad),
     ``foot_slip`` (m, the largest horizontal displacement of a foot contact point from its
     start), ``torque_norm`` (N m), ``relaxed`` and ``over_limit`` every tick.
 
     ``gains``: the WBLC gains pytree (default: ``config``'s). For many runs that differ
     only in gains or frequency, build one :func:`shaking_simulator` instead."""
-    simulate = shaking_simulator(model, config, shaking, fall_height)
+    simulate = shaking_simulator(model, config, shaking, fall_height, robot)
     return simulate(duration, gains=gains, progress=progress)
 
 
 def shaking_simulator(
-    model: mujoco.MjModel, config: WBLCConfig, shaking: ShakingParams, fall_height: float = 0.7
+    model: mujoco.MjModel,
+    config: WBLCConfig,
+    shaking: ShakingParams,
+    fall_height: float = 0.7,
+    robot: RobotDescription = DEFAULT_ROBOT,
 ):
     """``simulate(duration, gains=None, frequency_hz=None, progress=False) -> ClosedLoopLog``,
     as :func:`simulate_shaking`. The gains and the frequency (default: ``shaking``'s) are
@@ -46,7 +51,7 @@ def shaking_simulator(
     validation, held-out frequencies) share the compile and the set-up."""
     ctrl = make_wblc(model, config)
     data0 = mujoco.MjData(model)
-    data0.qpos[:] = keyframe_qpos(model, "walk")
+    data0.qpos[:] = robot.keyframe_qpos(model)
     mujoco.mj_forward(model, data0)
     refs0 = ctrl.hold_references(jnp.asarray(data0.qpos))
     q0 = refs0["body_ori"].pos

@@ -22,9 +22,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxloco.control.presets import walking_config
-from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.learning.checkpoint import load_planner
 from jaxloco.locomotion import make_walking_controller
+from jaxloco.robots import robot_by_name
 from jaxloco.sim.mjx_loop import physics_model
 from jaxloco.sim.push import PushArrays, body_index
 from jaxloco.sweep.backends import CBatchBackend, ChunkStarts, MJXBackend
@@ -109,14 +109,16 @@ class ChunkRunner:
 
             enable_compilation_cache(job.cache_dir)
         self.job = job
-        self.model = load_valkyrie()
+        self.robot = robot_by_name(job.robot)
+        self.model = self.robot.load()
         self.sim_model = physics_model(self.model, job.physics)
         body = body_index(self.model, job.push_body)
         self.ctrl = make_walking_controller(
             self.model,
-            config=job.wblc or walking_config(),
+            config=job.wblc or walking_config(self.robot),
             gait=job.gait,
             planner=load_planner(job.planner),
+            robot=self.robot,
         )
         self.horizon_steps = int(round(job.horizon / self.model.opt.timestep))
         self.snapshots: dict = {}
@@ -223,7 +225,7 @@ class ChunkRunner:
         t0 = time.perf_counter()
         n, model = self.job.chunk_size, self.sim_model
         data = mujoco.MjData(model)
-        data.qpos[:] = keyframe_qpos(model, "walk")
+        data.qpos[:] = self.robot.keyframe_qpos(model)
         mujoco.mj_forward(model, data)
         state = np.zeros(mujoco.mj_stateSize(model, STATE_SPEC))
         mujoco.mj_getState(model, data, state, STATE_SPEC)

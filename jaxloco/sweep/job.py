@@ -19,6 +19,7 @@ from jaxloco import validation as v
 from jaxloco.control.wblc import WBLCConfig
 from jaxloco.learning.checkpoint import checkpoint_digest
 from jaxloco.locomotion import GaitParams
+from jaxloco.robots import DEFAULT_ROBOT, ROBOTS
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep.spec import SweepSpec
 
@@ -43,7 +44,10 @@ class SweepJob:
     physics: PhysicsParams = PhysicsParams()
     wblc: WBLCConfig | None = None
     """The WBLC's configuration; None: the walking preset."""
-    push_body: str = "pelvis"
+    robot: str = DEFAULT_ROBOT.name
+    """The robot (:data:`jaxloco.robots.ROBOTS`) whose model, keyframe and feet the sweep
+    uses."""
+    push_body: str = DEFAULT_ROBOT.base_body
     push_step: int = 4
     """The step (counted from the first lift-off) during which pushes start."""
     horizon: float = 2.5
@@ -70,6 +74,7 @@ class SweepJob:
             self,
             [
                 v.one_of(self, "backend", BACKENDS),
+                v.one_of(self, "robot", tuple(ROBOTS)),
                 v.integer(self, "chunk_size", 1),
                 v.integer(self, "push_step", 1),
                 v.integer(self, "steps_after", 0),

@@ -41,6 +41,7 @@ from pathlib import Path
 import numpy as np
 
 from jaxloco import validation as v
+from jaxloco.robots import DEFAULT_ROBOT
 from jaxloco.runtime import to_jsonable
 from jaxloco.sweep.spec import PushTable
 
@@ -373,7 +374,7 @@ def run_limit_search(
     gait=None,
     physics=None,
     wblc=None,
-    push_body: str = "pelvis",
+    push_body: str = DEFAULT_ROBOT.base_body,
     workers: int = 0,
     address: str | None = None,
     config: dict | None = None,

@@ -132,3 +132,120 @@ def write_limits_report(result: LimitResult, out_dir, dpi: int = 120) -> dict:
     plot_limits_polar(result).savefig(out / "limits_polar.png", dpi=dpi)
     plot_limits_heatmap(result).savefig(out / "limits_heatmap.png", dpi=dpi)
     return summary
+
+
+def compare_limit_summaries(summaries: dict[str, dict]) -> dict:
+    """Per variant and direction, the limits of several searches side by side.
+
+    ``summaries``: label -> a limit search's ``summary.json`` (e.g. the same search at two
+    torque bounds). The searches must have the same directions, phases and variants.
+    Per direction: the worst phase's limit (the impulse recovered at every phase) and the
+    median over phases."""
+    if len(summaries) < 2:
+        raise ValueError("compare_limit_summaries: needs at least two summaries")
+    labels = list(summaries)
+    first = summaries[labels[0]]
+    for label in labels[1:]:
+        other = summaries[label]
+        for key in ("directions_deg", "phases", "durations", "replan"):
+            if other["search"][key] != first["search"][key]:
+                raise ValueError(
+                    f"compare_limit_summaries: {label!r} has search.{key} "
+                    f"{other['search'][key]}, {labels[0]!r} has {first['search'][key]}"
+                )
+    variants = {}
+    for name, v in first["variants"].items():
+        rows = {}
+        for d in first["search"]["directions_deg"]:
+            row = {}
+            for label in labels:
+                s = summaries[label]
+                limits = [
+                    c["limit_Ns"]
+                    for c in s["cells"]
+                    if c["direction_deg"] == d
+                    and c["replan"] == v["replan"]
+                    and c["duration_s"] == v["duration_s"]
+                ]
+                row[label] = {
+                    "worst_phase_Ns": float(np.min(limits)),
+                    "median_Ns": float(np.median(limits)),
+                }
+            rows[f"{d:g}"] = row
+        variants[name] = {
+            "per_direction": rows,
+            "median_limit_Ns": {
+                lb: summaries[lb]["variants"][name]["median_limit_Ns"] for lb in labels
+            },
+            "cells_at_least_paper": {
+                lb: summaries[lb]["variants"][name]["cells_at_least_paper"] for lb in labels
+            },
+            "cells": v["cells"],
+        }
+    return {
+        "labels": labels,
+        "paper_impulse_Ns": first["paper_impulse_Ns"],
+        "resolution_Ns": first["resolution_Ns"],
+        "variants": variants,
+    }
+
+
+def _comparison_markdown(cmp: dict) -> str:
+    labels = cmp["labels"]
+    lines = [
+        "# Limit searches compared: the largest recovered impulse per direction",
+        "",
+        f"Per direction, the worst phase's limit (recovered at every phase) and, in brackets, "
+        f"the median over phases, in N s (resolution {cmp['resolution_Ns']:g} N s; the "
+        f"paper's push: {cmp['paper_impulse_Ns']:g} N s).",
+    ]
+    for name, v in cmp["variants"].items():
+        lines += ["", f"## {name}", ""]
+        lines += ["| direction | " + " | ".join(labels) + " |"]
+        lines += ["|---|" + "---|" * len(labels)]
+        for d, row in v["per_direction"].items():
+            cells = [f"{row[lb]['worst_phase_Ns']:g} ({row[lb]['median_Ns']:g})" for lb in labels]
+            lines.append(f"| {d} deg | " + " | ".join(cells) + " |")
+        medians = [f"{v['median_limit_Ns'][lb]:g}" for lb in labels]
+        lines.append("| median cell | " + " | ".join(medians) + " |")
+        paper = [f"{v['cells_at_least_paper'][lb]}/{v['cells']}" for lb in labels]
+        lines.append("| cells >= paper | " + " | ".join(paper) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot_limits_comparison(cmp: dict) -> Figure:
+    """One polar panel per variant: each search's worst-phase limit per direction."""
+    variants = list(cmp["variants"].items())
+    fig = Figure(figsize=(4.3 * len(variants), 4.6), constrained_layout=True)
+    for n, (name, v) in enumerate(variants):
+        ax = fig.add_subplot(1, len(variants), n + 1, projection="polar")
+        dirs = np.radians([float(d) for d in v["per_direction"]])
+        order = np.argsort(dirs)
+        theta = np.r_[dirs[order], dirs[order][:1] + 2 * np.pi]
+        for label in cmp["labels"]:
+            r = np.array([row[label]["worst_phase_Ns"] for row in v["per_direction"].values()])
+            r = r[order]
+            ax.plot(theta, np.r_[r, r[:1]], "o-", ms=3, lw=1.4, label=label)
+        circle = np.linspace(0, 2 * np.pi, 200)
+        ax.plot(
+            circle,
+            np.full_like(circle, cmp["paper_impulse_Ns"]),
+            "k--",
+            lw=0.8,
+            label="paper's push",
+        )
+        ax.set_title(f"{name}\nworst phase's limit (N s)", fontsize=9)
+        ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(-0.15, -0.15))
+    return fig
+
+
+def write_limits_comparison(summaries: dict[str, dict], out_dir, dpi: int = 120) -> dict:
+    """``comparison.json``, ``comparison.md`` and ``comparison_polar.png`` in ``out_dir``
+    (:func:`compare_limit_summaries`); returns the comparison."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cmp = compare_limit_summaries(summaries)
+    write_json(out / "comparison.json", cmp)
+    (out / "comparison.md").write_text(_comparison_markdown(cmp))
+    plot_limits_comparison(cmp).savefig(out / "comparison_polar.png", dpi=dpi)
+    return cmp

@@ -28,6 +28,7 @@ import numpy as np
 from jaxloco.control.presets import walking_config
 from jaxloco.control.wblc import WBLCConfig
 from jaxloco.locomotion import GaitParams
+from jaxloco.robots import DEFAULT_ROBOT
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep.chunks import ChunkRunner, chunk_rows
 from jaxloco.sweep.executors import available_cores, run_in_process
@@ -55,7 +56,7 @@ def run_sweep(
     gait: GaitParams | None = None,
     physics: PhysicsParams | None = None,
     wblc: WBLCConfig | None = None,
-    push_body: str = "pelvis",
+    push_body: str = DEFAULT_ROBOT.base_body,
     nthread: int | None = None,
     config: dict | None = None,
     progress: bool = True,
@@ -89,7 +90,7 @@ def make_job(
     gait: GaitParams | None = None,
     physics: PhysicsParams | None = None,
     wblc: WBLCConfig | None = None,
-    push_body: str = "pelvis",
+    push_body: str = DEFAULT_ROBOT.base_body,
     nthread: int | None = None,
 ) -> SweepJob:
     """The :class:`SweepJob` of running ``spec``'s pushes into ``run_dir`` (MJX: the chunk

@@ -21,7 +21,6 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxloco.dynamics.model import keyframe_qpos
 from jaxloco.locomotion.gait import GaitOverrides
 from jaxloco.locomotion.walking import WalkingController
 
@@ -98,7 +97,7 @@ def walk_key(apex_speed: float, turn_deg: float, replan: bool) -> tuple:
 def initial_controller_state(
     ctrl: WalkingController, model: mujoco.MjModel, apex_speed, turn_deg, replan
 ):
-    qpos = jnp.asarray(keyframe_qpos(model, "walk"))
+    qpos = jnp.asarray(ctrl.robot.keyframe_qpos(model))
     turns = np.full(NUM_TURNS, math.radians(turn_deg))
     overrides = GaitOverrides.of(
         ctrl.gait_params, jnp.asarray(qpos).dtype, replan=bool(replan), apex_speed=apex_speed
@@ -125,7 +124,7 @@ def snapshot_walk(
     """
     phases = np.asarray(sorted(set(float(p) for p in phases)))
     data = mujoco.MjData(sim_model)
-    data.qpos[:] = keyframe_qpos(sim_model, "walk")
+    data.qpos[:] = ctrl.robot.keyframe_qpos(sim_model)
     mujoco.mj_forward(sim_model, data)
     cstate = initial_controller_state(ctrl, sim_model, apex_speed, turn_deg, replan)
     blend = ctrl.gait_params.contact_blend

@@ -1,0 +1,39 @@
+"""Robot descriptions: what WBLC, the gait and the sweeps need to know about a humanoid
+(:class:`RobotDescription`), and the robots jaxloco ships (:data:`ROBOTS`)."""
+
+from jaxloco.robots.description import (
+    PD,
+    Foot,
+    RobotDescription,
+    TaskGains,
+    check_model,
+    effort_limits,
+)
+from jaxloco.robots.valkyrie import VALKYRIE
+
+ROBOTS = {VALKYRIE.name: VALKYRIE}
+"""Shipped robots by name."""
+
+DEFAULT_ROBOT = VALKYRIE
+"""The robot a controller, gait or sweep is built for unless told otherwise."""
+
+
+def robot_by_name(name: str) -> RobotDescription:
+    """A shipped robot by name (a clear error naming the valid ones otherwise)."""
+    if name not in ROBOTS:
+        raise ValueError(f"robot: one of {sorted(ROBOTS)}, got {name!r}")
+    return ROBOTS[name]
+
+
+__all__ = [
+    "DEFAULT_ROBOT",
+    "PD",
+    "ROBOTS",
+    "VALKYRIE",
+    "Foot",
+    "RobotDescription",
+    "TaskGains",
+    "check_model",
+    "effort_limits",
+    "robot_by_name",
+]

@@ -1,0 +1,194 @@
+"""What the controller needs to know about a humanoid: :class:`RobotDescription`.
+
+WBLC's task set, the gait and the sweeps are built from a description, never from a
+model's names directly: its feet (contact frame and contact points), the bodies whose
+orientation the hierarchy holds, its joint groups, the keyframe it stands in, and default
+task gains. :func:`check_model` tells, by name, what a model lacks before anything is
+compiled. A model is bound to a description by name (``RobotDescription.model``: a model
+shipped in ``assets/``, or an MJCF path).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import mujoco
+import numpy as np
+
+from jaxloco.dynamics.model import load_model
+
+
+@dataclasses.dataclass(frozen=True)
+class Foot:
+    """One foot: the site of its contact frame (its centre of pressure at rest, body-aligned)
+    and the sites of its contact points, all on the foot's body."""
+
+    name: str
+    """Side, e.g. ``"left"``: task names are ``{name}_contact``, ``{name}_foot_pos``..."""
+    frame: str
+    points: tuple[str, ...]
+
+
+@dataclasses.dataclass(frozen=True)
+class PD:
+    """Task gains: one number for every row, or one per row (``()``: none)."""
+
+    kp: tuple[float, ...] = (0.0,)
+    kd: tuple[float, ...] = (0.0,)
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskGains:
+    """Default PD gains of the presets' tasks (units of the task: 1/s^2 and 1/s).
+
+    The defaults are Valkyrie's: the CoM gains are the authors' (from their code), the
+    rest ours, chosen so the robot stands and shakes stably at 1 kHz (the paper gives
+    none)."""
+
+    contact: PD = PD(kd=(10.0,))
+    com: PD = PD((50.0, 50.0, 220.0), (15.0, 15.0, 10.0))
+    cam: PD = PD((5.0,))
+    base_orientation: PD = PD((100.0,), (20.0,))
+    torso_orientation: PD = PD((100.0,), (20.0,))
+    foot_orientation: PD = PD((200.0,), (30.0,))
+    foot_position: PD = PD((400.0,), (40.0,))
+    posture: PD = PD((100.0,), (20.0,))
+
+
+@dataclasses.dataclass(frozen=True)
+class RobotDescription:
+    """A humanoid as the controller sees it (every name is one in the model).
+
+    ``feet`` is (left, right). ``base_frame`` and ``torso_frame`` are body-aligned sites of
+    the floating base (the pelvis) and of the upper body, whose orientations the walking
+    and shaking hierarchies hold; ``base_body`` is the body pushes act on and whose height
+    tells a fall. ``joints`` are every actuated joint (the full posture task); the groups
+    below are subsets of them."""
+
+    name: str
+    model: str
+    """A model in ``assets/`` by name, or an MJCF path."""
+    feet: tuple[Foot, Foot]
+    base_frame: str
+    base_body: str
+    torso_frame: str
+    joints: tuple[str, ...]
+    upper_body_joints: tuple[str, ...]
+    """Torso and neck: the walking hierarchy's upper-body posture task."""
+    arm_joints: tuple[str, ...]
+    """The arms: the walking hierarchy's last task, and what carries the CAM while turning."""
+    partial_posture_joints: tuple[str, ...]
+    """Eq. 32's partial posture (every joint except shoulder pitch, shoulder roll, knee)."""
+    keyframe: str = "walk"
+    """The keyframe the robot starts in, and whose joint angles the posture tasks hold."""
+    gains: TaskGains = TaskGains()
+    fall_height: float = 0.7
+    """Height (m) of ``base_body`` below which the robot has fallen."""
+
+    def __post_init__(self):
+        if len(self.feet) != 2:
+            raise ValueError(f"RobotDescription {self.name!r}: feet must be (left, right)")
+        groups = ("upper_body_joints", "arm_joints", "partial_posture_joints")
+        for group in groups:
+            extra = sorted(set(getattr(self, group)) - set(self.joints))
+            if extra:
+                raise ValueError(
+                    f"RobotDescription {self.name!r}: {group} names joints not in joints: {extra}"
+                )
+        if not self.fall_height > 0:
+            raise ValueError(
+                f"RobotDescription {self.name!r}: fall_height must be > 0 m, got {self.fall_height}"
+            )
+
+    def load(self) -> mujoco.MjModel:
+        """The model, checked against this description (:func:`check_model`)."""
+        model = load_model(self.model)
+        check_model(self, model)
+        return model
+
+    def foot_sites(self, model: mujoco.MjModel) -> tuple[int, ...]:
+        """Site ids of the feet's contact frames (left, right)."""
+        return tuple(model.site(foot.frame).id for foot in self.feet)
+
+    def keyframe_qpos(self, model: mujoco.MjModel) -> np.ndarray:
+        return model.key(self.keyframe).qpos.copy()
+
+
+def effort_limits(model: mujoco.MjModel) -> np.ndarray:
+    """(nu,) each actuator's torque bound (N m): its control range times its gear; inf
+    where the control is not limited."""
+    gear = model.actuator_gear[:, 0]
+    bound = np.max(np.abs(model.actuator_ctrlrange), axis=1) * np.abs(gear)
+    return np.where(model.actuator_ctrllimited.astype(bool), bound, np.inf)
+
+
+def check_model(robot: RobotDescription, model: mujoco.MjModel) -> None:
+    """Raise ``ValueError`` naming everything ``model`` lacks that ``robot`` needs: sites,
+    bodies, joints, a keyframe, a floating base, and torque motors on every joint."""
+    missing = []
+
+    def has(kind, name):
+        return mujoco.mj_name2id(model, kind, name) >= 0
+
+    site, body, joint = (
+        mujoco.mjtObj.mjOBJ_SITE,
+        mujoco.mjtObj.mjOBJ_BODY,
+        mujoco.mjtObj.mjOBJ_JOINT,
+    )
+    for foot in robot.feet:
+        for name in (foot.frame, *foot.points):
+            if not has(site, name):
+                missing.append(f"site {name!r} ({foot.name} foot)")
+        if has(site, foot.frame):
+            body_of = model.site(foot.frame).bodyid[0]
+            off = [p for p in foot.points if has(site, p) and model.site(p).bodyid[0] != body_of]
+            if off:
+                missing.append(f"{foot.name} foot's points {off} on the body of {foot.frame!r}")
+    for field in ("base_frame", "torso_frame"):
+        name = getattr(robot, field)
+        if not has(site, name):
+            missing.append(f"site {name!r} ({field})")
+        elif not np.allclose(model.site(name).quat, [1, 0, 0, 0]):
+            missing.append(f"a body-aligned site {name!r} ({field})")
+    if not has(body, robot.base_body):
+        missing.append(f"body {robot.base_body!r} (base_body)")
+    if model.njnt == 0 or model.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE:
+        missing.append("a free joint as its first joint (the floating base)")
+    if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, robot.keyframe) < 0:
+        missing.append(f"keyframe {robot.keyframe!r}")
+    driven = {}
+    for a in range(model.nu):
+        if model.actuator_trntype[a] == mujoco.mjtTrn.mjTRN_JOINT:
+            driven.setdefault(int(model.actuator_trnid[a, 0]), []).append(a)
+    for name in robot.joints:
+        if not has(joint, name):
+            missing.append(f"joint {name!r}")
+            continue
+        j = model.joint(name).id
+        if model.jnt_type[j] != mujoco.mjtJoint.mjJNT_HINGE:
+            missing.append(f"a hinge joint {name!r}")
+        actuators = driven.get(j, [])
+        if len(actuators) != 1:
+            missing.append(f"exactly one actuator on joint {name!r} (has {len(actuators)})")
+            continue
+        a = actuators[0]
+        if not _is_torque_motor(model, a):
+            missing.append(
+                f"a torque motor on joint {name!r} (actuator {model.actuator(a).name!r} is a "
+                "servo: gain or bias depends on the state)"
+            )
+    if missing:
+        raise ValueError(
+            f"model {robot.model!r} does not fit robot {robot.name!r}; it lacks: "
+            + "; ".join(missing)
+        )
+
+
+def _is_torque_motor(model: mujoco.MjModel, a: int) -> bool:
+    """A motor: force = gear * ctrl, no activation, no state-dependent gain or bias."""
+    return (
+        model.actuator_dyntype[a] == mujoco.mjtDyn.mjDYN_NONE
+        and model.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+        and model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_NONE
+        and model.actuator_gear[a, 0] != 0
+    )
