@@ -92,6 +92,9 @@ class PushSweepConfig(RunConfig):
     the walking preset's (``presets.WALKING_INVERSES``)."""
     torque_pinv_rtol: float = 1e-8
     """The rank threshold of Eq. 19's torque solve (``WBLCConfig.torque_pinv_rtol``)."""
+    torque_limits_in_qp: bool = False
+    """Keep the legs' torques within the model's effort limits in the force QP
+    (``WBLCConfig.torque_limits_in_qp``); pair with ``physics.torque_limit=model``."""
     planner: str = ""
     """A step-policy checkpoint folder (``jaxloco train-planner`` writes one); empty: the
     shipped default. Use a new run directory for another policy."""
@@ -120,6 +123,7 @@ def controller_settings(cfg) -> dict:
                 pinv_rtol=cfg.pinv_rtol,
                 whiten_tasks=cfg.whiten_tasks,
                 torque_pinv_rtol=cfg.torque_pinv_rtol,
+                torque_limits_in_qp=cfg.torque_limits_in_qp,
                 force_qp=to_params(ForceQPParams, cfg.force_qp),
                 **({"hierarchy_inverse": cfg.hierarchy_inverse} if cfg.hierarchy_inverse else {}),
             ),

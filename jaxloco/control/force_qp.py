@@ -71,6 +71,16 @@ class ForceQPParams:
     """Over-relaxation of the ``z``-step (1: none; OSQP's default 1.6)."""
     force_scale: float = 100.0
     """Forces are solved in units of this many newtons (conditioning)."""
+    torque_rho: float = 1.0
+    """ADMM penalty of the torque-limit rows (with :class:`TorqueRows`), relative to
+    ``rho`` times the mean diagonal of the rows' Gram matrix (rows in units of their
+    limit)."""
+    torque_dual_max: float = 10.0
+    """Bound on the scaled dual of each torque-limit row. Where the forces cannot bring a
+    torque within its limit (an upper-body joint the feet do not reach, a push beyond what
+    the legs carry), an unbounded dual would grow tick after tick and pull the forces off
+    the net-force equality; bounded, a violated row is an exact L1 penalty of this weight
+    (times the penalty) and the violation is reported (``torque_excess``)."""
 
     def __post_init__(self):
         v.check_fields(
@@ -88,7 +98,13 @@ class ForceQPParams:
                 *v.positive(self, "rho"),
                 ("alpha", 0 < self.alpha < 2, "in (0, 2)"),
                 *v.positive(
-                    self, "force_scale", "weight_tangential", "weight_normal", "weight_angular"
+                    self,
+                    "force_scale",
+                    "weight_tangential",
+                    "weight_normal",
+                    "weight_angular",
+                    "torque_rho",
+                    "torque_dual_max",
                 ),
             ],
         )
@@ -102,6 +118,11 @@ class ForceQPState:
     """(3, n) projected forces, rows ``x, y, z`` components."""
     u: jax.Array
     """(3, n) scaled dual of ``f = z``."""
+    torque_z: jax.Array
+    """(m,) torque-limit rows' projected values (units of each row's limit; ``m = 0``
+    without :class:`TorqueRows`)."""
+    torque_u: jax.Array
+    """(m,) their scaled duals."""
 
 
 @struct.dataclass
@@ -119,14 +140,32 @@ class ForceQPSolution:
     used."""
     infeasible: jax.Array
     """True when not even the relaxed pyramid can: ``linear_residual`` is then large."""
+    torque_excess: jax.Array
+    """With :class:`TorqueRows`: the largest amount (N m) by which the forces leave a
+    torque beyond its limit (0 within every limit; 0 without rows)."""
     warm_start: ForceQPState
     """Pass back next tick."""
 
 
-def zero_warm_start(num_points: int, dtype=None) -> ForceQPState:
-    """The ``warm_start`` of a first solve."""
-    zero = jnp.zeros((3, num_points), dtype or jnp.zeros(()).dtype)
-    return ForceQPState(zero, zero)
+def zero_warm_start(num_points: int, dtype=None, num_torques: int = 0) -> ForceQPState:
+    """The ``warm_start`` of a first solve (``num_torques``: rows of :class:`TorqueRows`)."""
+    dtype = dtype or jnp.zeros(()).dtype
+    zero, rows = jnp.zeros((3, num_points), dtype), jnp.zeros((num_torques,), dtype)
+    return ForceQPState(zero, zero, rows, rows)
+
+
+@struct.dataclass
+class TorqueRows:
+    """Actuator torques as an affine map of the contact forces, and their limits: the
+    constraint ``|offset - matrix @ f| <= limit`` (N m), ``f`` the (3n,) forces in N,
+    coordinate-major (all ``x``, all ``y``, all ``z``)."""
+
+    matrix: jax.Array
+    """(m, 3n) N m per N."""
+    offset: jax.Array
+    """(m,) the torques at zero contact force (N m)."""
+    limit: jax.Array
+    """(m,) each row's bound (N m, > 0 and finite)."""
 
 
 def net_force_feasible(f_lin, in_contact, fz_max, mu, params: ForceQPParams):
@@ -187,6 +226,21 @@ def _inv3(m):
     )
     det = a * cof[0, 0] + b * cof[1, 0] + c * cof[2, 0]
     return cof / det
+
+
+def moment_map(points, in_contact, com):
+    """``W_ang`` (3, 3n): the moment about ``com`` of forces at ``points`` (coordinate-major
+    columns); points out of contact take no part."""
+    n = points.shape[0]
+    r = (points - com) * in_contact.astype(points.dtype)[:, None]
+    zero = jnp.zeros(n, points.dtype)
+    return jnp.stack(
+        [
+            jnp.concatenate([zero, -r[:, 2], r[:, 1]]),
+            jnp.concatenate([r[:, 2], zero, -r[:, 0]]),
+            jnp.concatenate([-r[:, 1], r[:, 0], zero]),
+        ]
+    )
 
 
 def affine_step(points, in_contact, com, f_lin, f_ang, params: ForceQPParams):
@@ -275,7 +329,80 @@ def admm(matrix, offset, fz_lo, fz_hi, mu, params: ForceQPParams, warm: ForceQPS
     (t, _), _ = jax.lax.scan(step, (t, 2.0 * project(t) - t), None, length=params.iterations - 1)
     z = project(t)
     u = t - z
-    return ForceQPState(z, u), f_step(z - u)
+    return ForceQPState(z, u, warm.torque_z, warm.torque_u), f_step(z - u)
+
+
+def affine_step_with_torques(points, in_contact, com, f_lin, f_ang, params: ForceQPParams, rows):
+    """The ``f``-step with torque-limit rows ``rows`` ((m, 3n) map of the scaled forces to
+    torques in units of their limits): ``f = M [v; v_t] + c``, ``M`` (3n, 3n + m), from
+    ``1/2 f'Pf + q'f + rho/2 |f - v|^2 + rho_t/2 |rows f - v_t|^2`` subject to the net
+    force (``P``, ``q`` as :func:`affine_step`). The rows make it dense: one Cholesky
+    factorisation of the (3n, 3n) ``P + rho I + rho_t rows' rows``. Returns ``M``, ``c``,
+    ``W_ang`` and ``rho_t``."""
+    dtype = points.dtype
+    n = points.shape[0]
+    s = params.force_scale
+    on = in_contact.astype(dtype)
+    r = (points - com) * on[:, None]
+    w_ang = moment_map(points, in_contact, com)
+    w_lin = jnp.kron(jnp.eye(3, dtype=dtype), on[None, :])
+    weights = jnp.repeat(
+        jnp.asarray(
+            [params.weight_tangential, params.weight_tangential, params.weight_normal], dtype
+        ),
+        n,
+    )
+    w = params.weight_angular
+    k = 2.0 * (jnp.mean(weights) + w * jnp.sum(r * r) * 2.0 / (3 * n))
+    rho = params.rho
+    rho_t = params.torque_rho * rho
+    hessian = (
+        jnp.diag(2.0 * weights / k + rho) + (2.0 * w / k) * w_ang.T @ w_ang + rho_t * rows.T @ rows
+    )
+    factor = jax.scipy.linalg.cho_factor(hessian, lower=True)
+    h_inv = jax.scipy.linalg.cho_solve(factor, jnp.eye(3 * n, dtype=dtype))
+    q = -(2.0 * w / k) * (w_ang.T @ (f_ang / s))
+    g_lin = h_inv @ w_lin.T
+    schur = w_lin @ g_lin + jnp.eye(3, dtype=dtype) * jnp.finfo(dtype).eps
+    schur_inv = _inv3(schur)
+    pi = h_inv - g_lin @ schur_inv @ g_lin.T
+    matrix = jnp.concatenate([rho * pi, rho_t * (pi @ rows.T)], axis=1)
+    return matrix, g_lin @ (schur_inv @ (f_lin / s)) - pi @ q, w_ang, rho_t
+
+
+def admm_with_torques(matrix, offset, rows, lo, hi, fz_lo, fz_hi, mu, params, warm):
+    """ADMM on ``[f; rows f] = [z; z_t]`` (OSQP's splitting, over-relaxed): ``z`` projected
+    on the points' sets, ``z_t`` clipped to ``[lo, hi]``; the torque rows' scaled duals
+    bounded by ``torque_dual_max`` (see :class:`ForceQPParams`). Returns the state and the
+    last ``f``-step."""
+    n = fz_lo.shape[0]
+    alpha = params.alpha
+    ft_max = params.ft_max / params.force_scale
+    dual_max = params.torque_dual_max
+    row = jnp.arange(3)[:, None]
+
+    def project(t):
+        fx, fy, fz = project_point(t[0], t[1], t[2], fz_lo, fz_hi, mu, ft_max)
+        return jnp.where(row == 0, fx, jnp.where(row == 1, fy, fz))
+
+    def f_step(z, u, zt, ut):
+        v = jnp.concatenate([(z - u).reshape(-1), zt - ut])
+        return matrix @ v + offset
+
+    def step(carry, _):
+        z, u, zt, ut = carry
+        f = f_step(z, u, zt, ut)
+        f_rel = alpha * f.reshape(3, n) + (1.0 - alpha) * z
+        t_rel = alpha * (rows @ f) + (1.0 - alpha) * zt
+        z_new = project(f_rel + u)
+        zt_new = jnp.clip(t_rel + ut, lo, hi)
+        u_new = u + f_rel - z_new
+        ut_new = jnp.clip(ut + t_rel - zt_new, -dual_max, dual_max)
+        return (z_new, u_new, zt_new, ut_new), None
+
+    carry = (warm.z, warm.u, warm.torque_z, jnp.clip(warm.torque_u, -dual_max, dual_max))
+    (z, u, zt, ut), _ = jax.lax.scan(step, carry, None, length=params.iterations)
+    return ForceQPState(z, u, zt, ut), f_step(z, u, zt, ut)
 
 
 def solve_contact_forces(
@@ -287,12 +414,16 @@ def solve_contact_forces(
     params: ForceQPParams = ForceQPParams(),
     fz_max=None,
     warm_start: ForceQPState | None = None,
+    torques: TorqueRows | None = None,
 ) -> ForceQPSolution:
     """Contact forces for a desired CoM force ``f_lin = m (a_com + g)`` and CAM rate ``f_ang``.
 
     ``points`` (n, 3) world contact points, ``in_contact`` (n,) bool, ``com`` (3,).
     ``fz_max``: optional per-point upper normal-force bound (N; contact blending).
     ``warm_start``: the previous solution's ``warm_start``.
+    ``torques``: actuator torques as a map of the forces, to be kept within their limits
+    (the QP gains the rows ``|offset - matrix f| <= limit``; ``warm_start`` must then have
+    as many torque rows: ``zero_warm_start(n, dtype, m)``).
     """
     points, com = jnp.asarray(points), jnp.asarray(com)
     dtype = points.dtype
@@ -301,8 +432,14 @@ def solve_contact_forces(
     f_lin, f_ang = jnp.asarray(f_lin, dtype), jnp.asarray(f_ang, dtype)
     fz_max = jnp.full((n,), params.fz_max, dtype) if fz_max is None else fz_max
     fz_max = jnp.asarray(fz_max, dtype)
+    m = 0 if torques is None else torques.offset.shape[0]
     if warm_start is None:
-        warm_start = zero_warm_start(n, dtype)
+        warm_start = zero_warm_start(n, dtype, m)
+    if warm_start.torque_z.shape != (m,):
+        raise ValueError(
+            f"solve_contact_forces: warm_start has {warm_start.torque_z.shape[0]} torque rows, "
+            f"the problem {m}"
+        )
     # Non-finite commands or geometry (a fallen or exploded state): solve a zero problem,
     # flagged infeasible, rather than let NaN reach the torques.
     finite = jnp.all(jnp.isfinite(f_lin)) & jnp.all(jnp.isfinite(f_ang))
@@ -319,15 +456,38 @@ def solve_contact_forces(
     fz_lo = jnp.where(in_contact, params.fz_min / s, 0.0).astype(dtype)
     # fz_max below fz_min (a contact blending in): the point carries exactly fz_min.
     fz_hi = jnp.where(in_contact, jnp.maximum(fz_max, params.fz_min) / s, 0.0).astype(dtype)
-    matrix, offset, w_ang = affine_step(points, in_contact, com, f_lin, f_ang, params)
-    state, f = admm(matrix, offset, fz_lo, fz_hi, mu, params, warm_start)
+    if torques is None:
+        matrix, offset, w_ang = affine_step(points, in_contact, com, f_lin, f_ang, params)
+        state, f = admm(matrix, offset, fz_lo, fz_hi, mu, params, warm_start)
+        f = f.reshape(-1)
+        torque_excess = jnp.zeros((), dtype)
+    else:
+        # Rows in units of each limit, forces in units of force_scale: |tau0 - G f| <= l
+        # reads lo <= rows f <= hi with rows = G s / l.
+        limit = jnp.asarray(torques.limit, dtype)
+        offset_t = jnp.where(finite, jnp.asarray(torques.offset, dtype), 0.0)
+        g_scaled = jnp.where(finite, jnp.asarray(torques.matrix, dtype), 0.0) * s
+        # Each row scaled to unit norm (equilibrated, so one penalty suits every row);
+        # a row the forces do not reach keeps a tiny norm and its violation is reported.
+        norm = jnp.maximum(jnp.linalg.norm(g_scaled, axis=1), jnp.finfo(dtype).tiny)
+        rows = g_scaled / norm[:, None]
+        lo, hi = (offset_t - limit) / norm, (offset_t + limit) / norm
+        matrix, offset, w_ang, _ = affine_step_with_torques(
+            points, in_contact, com, f_lin, f_ang, params, rows
+        )
+        state, f = admm_with_torques(
+            matrix, offset, rows, lo, hi, fz_lo, fz_hi, mu, params, warm_start
+        )
+        tau = offset_t - (rows @ state.z.reshape(-1)) * norm
+        torque_excess = jnp.max(jnp.maximum(jnp.abs(tau) - limit, 0.0))
     forces = state.z.T * s
     return ForceQPSolution(
         forces=forces,
         angular=(w_ang @ state.z.reshape(-1)) * s,
         linear_residual=jnp.max(jnp.abs(jnp.sum(forces, axis=0) - f_lin)),
-        primal_residual=jnp.max(jnp.abs(f - state.z)) * s,
+        primal_residual=jnp.max(jnp.abs(f - state.z.reshape(-1))) * s,
         relaxed=~nominal_ok,
         infeasible=~(relaxed_ok & finite),
+        torque_excess=torque_excess,
         warm_start=state,
     )

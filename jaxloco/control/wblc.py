@@ -100,6 +100,16 @@ class WBLCConfig:
     factorisation replaces an eigendecomposition; see :mod:`jaxloco.control.hierarchy`)."""
     torque_pinv_rtol: float = 1e-8
     """The same for Eq. 19's ``[U', -A N]``."""
+    torque_limits_in_qp: bool = False
+    """Keep every actuator within the model's effort limits (control range times gear) in
+    the force QP: the torques of Eq. 11 of the joints that carry a foot, an affine map of
+    the contact forces once the hierarchy has set the task accelerations (the CAM command
+    through Eq. 15), become inequality rows of Eq. 14
+    (:class:`~jaxloco.control.force_qp.TorqueRows`). The forces move the centre of
+    pressure and the split between the feet to bring the legs within their limits; a leg
+    torque the forces cannot bring within its limit is reported (``qp_torque_excess``), and
+    the upper body's torques, which the forces do not reach, are the hierarchy's (flagged in
+    ``torque_over_limit``). Off: the paper's WBLC, torques unbounded."""
 
     def __post_init__(self):
         names = [t.name for t in self.tasks]
@@ -165,6 +175,9 @@ class WBLCDiagnostics:
     """Net force the contact forces miss (N)."""
     qp_primal_residual: jax.Array
     """How far the force QP's ADMM is from converged (N)."""
+    qp_torque_excess: jax.Array
+    """With ``torque_limits_in_qp``: the largest amount (N m) by which the QP's forces leave
+    a torque over its limit (0: within every limit, and always without)."""
     base_residual: jax.Array
     """Floating-base rows of Eq. 17 left unmet (6,): 0 when the torques realise qdd^d."""
     torque_over_limit: jax.Array
@@ -203,6 +216,9 @@ class WBLC:
     unactuated_dofs: tuple[int, ...]
     actuated_dofs: tuple[int, ...]
     """The dof each actuator drives, actuator order."""
+    foot_actuators: tuple[int, ...]
+    """Actuators whose joints carry a foot (a contact point's body or one of its
+    ancestors): the torques the contact forces reach, the rows of ``torque_limits_in_qp``."""
 
     def default_gains(self) -> dict:
         return default_gains(self.config.tasks)
@@ -220,7 +236,8 @@ class WBLC:
         }
 
     def initial_qp_state(self, dtype=None) -> force_qp.ForceQPState:
-        return force_qp.zero_warm_start(len(self.point_sites), dtype)
+        rows = len(self.foot_actuators) if self.config.torque_limits_in_qp else 0
+        return force_qp.zero_warm_start(len(self.point_sites), dtype, rows)
 
     def __call__(
         self, qpos, qvel, refs, contact, gains=None, previous=None, snap=None
@@ -257,9 +274,23 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
     )
     if np.any(model.actuator_gear[:, 0] == 0):
         raise ValueError("make_wblc: every actuator needs a nonzero gear")
+    if config.torque_limits_in_qp and not np.all(np.isfinite(np.asarray(limits))):
+        unlimited = [model.actuator(a).name for a in np.flatnonzero(~np.isfinite(limits))]
+        raise ValueError(
+            "WBLCConfig.torque_limits_in_qp needs an effort limit (ctrlrange) on every "
+            f"actuator; unlimited: {unlimited}"
+        )
     if len(set(dofs.tolist())) != len(dofs):
         raise ValueError("make_wblc: each actuated joint must have exactly one actuator")
     unactuated = tuple(sorted(set(range(model.nv)) - {int(v) for v in dofs}))
+    carrying = set()
+    for site in point_sites:
+        body = int(model.site_bodyid[site])
+        while body > 0:
+            start, count = int(model.body_dofadr[body]), int(model.body_dofnum[body])
+            carrying.update(range(start, start + count))
+            body = int(model.body_parentid[body])
+    foot_actuators = tuple(a for a, dof in enumerate(dofs.tolist()) if dof in carrying)
     return WBLC(
         model,
         mx,
@@ -271,6 +302,7 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
         limits,
         unactuated,
         tuple(int(v) for v in dofs),
+        foot_actuators,
     )
 
 
@@ -326,6 +358,7 @@ def wblc_tick(
         qp_infeasible=sol.infeasible,
         qp_linear_residual=sol.linear_residual,
         qp_primal_residual=sol.primal_residual,
+        qp_torque_excess=sol.torque_excess,
         base_residual=torques.base_residual,
         torque_over_limit=jnp.abs(torques.torques) > ctrl.torque_limits,
         task_errors=Segments.stack({n: t.error for n, t in terms.items()}),
@@ -423,11 +456,55 @@ def force_stage(
     points = d.site_xpos[jnp.asarray(ctrl.point_sites)]
     weight = contact[jnp.asarray(ctrl.foot_of_point)]
     fz_max = qp.fz_min + weight * (qp.fz_max - qp.fz_min)
+    torques = None
+    if cfg.torque_limits_in_qp:
+        torques = torque_rows(ctrl, snap, hier, cam_rate, points, weight > 0)
     sol = force_qp.solve_contact_forces(
-        points, weight > 0, snap.com, f_lin, cam_rate, qp, fz_max=fz_max, warm_start=previous
+        points,
+        weight > 0,
+        snap.com,
+        f_lin,
+        cam_rate,
+        qp,
+        fz_max=fz_max,
+        warm_start=previous,
+        torques=torques,
     )
     shift = jnp.concatenate([jnp.ones(1, dtype), sol.angular - cam_rate])
     return ForceStage(sol, shift)
+
+
+def torque_rows(
+    ctrl: WBLC, snap: RobotSnapshot, hier: HierarchyResult, cam_rate, points, in_contact
+) -> force_qp.TorqueRows:
+    """The rows of Eq. 11 of the joints that carry a foot (``foot_actuators``; the forces
+    reach no other torque but through the CAM command) as an affine map of the contact
+    forces (N m).
+
+    With the hierarchy's accelerations ``qdd = Q [1; W_ang f - cam_rate]`` (Eq. 15 sets
+    the CAM command to the rate the forces achieve), the joint torques are ``A qdd + b + g
+    - J_r' f``: ``offset = (A (Q_0 - Q_cam cam_rate) + b + g)_act`` and ``matrix = (J_r' - A
+    Q_cam W_ang)_act``. The null-space term ``qdd_res`` of Eq. 12 is left out (it is
+    chosen after the forces, and the walking hierarchy leaves it almost no room)."""
+    d = snap.data
+    moment = force_qp.moment_map(points, in_contact, snap.com)  # (3, 3n)
+    q_cam = hier.qdd[:, 1:4]
+    offset = snap.mass_matrix @ (hier.qdd[:, 0] - q_cam @ cam_rate) + snap.coriolis + snap.gravity
+    jac_t = contact_jacobian(ctrl, d, points).T  # (nv, 3n)
+    matrix = jac_t - snap.mass_matrix @ (q_cam @ moment)
+    rows = np.asarray(ctrl.foot_actuators)
+    dofs = jnp.asarray(np.asarray(ctrl.actuated_dofs)[rows])
+    return force_qp.TorqueRows(matrix[dofs], offset[dofs], ctrl.torque_limits[rows])
+
+
+def contact_jacobian(ctrl: WBLC, d, points):
+    """``J_r`` (3n, nv) of the contact points, rows coordinate-major (all ``x``, all
+    ``y``, all ``z``), as the force QP orders its variables."""
+    bodies = [int(ctrl.model.site_bodyid[s]) for s in ctrl.point_sites]
+    spatial = {b: jac.frame_jacobian_spatial(ctrl.mx, d, b) for b in sorted(set(bodies))}
+    rows = [spatial[b][3:] + jnp.cross(spatial[b][:3].T, points[k]).T for k, b in enumerate(bodies)]
+    per_point = jnp.stack(rows)  # (n, 3, nv)
+    return jnp.transpose(per_point, (1, 0, 2)).reshape(-1, per_point.shape[-1])
 
 
 def torque_stage(
