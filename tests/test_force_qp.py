@@ -375,3 +375,115 @@ def test_iterations_change_accuracy_not_shapes(contact_batch):
         assert cone_violation(np.asarray(sol.forces), 0.65) < 1e-9
         medians.append(np.median(relative_errors(problems[:200], refs[:200], sol)))
     assert medians[1] < 0.1 * medians[0]
+
+
+def _torque_problem(rng, tight):
+    """A contact problem with 12 leg-like torque rows (6 per foot, each a map of that
+    foot's forces) whose limits are ``tight`` times the unconstrained solution's torques."""
+    from jaxloco.control.force_qp import TorqueRows
+
+    points, contact, com, f_lin, f_ang = contact_problem(rng)
+    n, m = len(points), 12
+    g = np.zeros((m, 3 * n))
+    for foot in range(2):
+        for i in range(4 * foot, 4 * foot + 4):
+            for c in range(3):
+                g[6 * foot : 6 * foot + 6, c * n + i] = rng.normal(0, 0.3, 6)
+    free = np.asarray(solve_contact_forces(points, contact, com, f_lin, f_ang).forces)
+    offset = rng.normal(0, 30, m)
+    tau = offset - g @ free.T.reshape(-1)
+    limit = np.maximum(np.abs(tau) * tight * rng.uniform(0.7, 1.5, m), 5.0)
+    return (points, contact, com, f_lin, f_ang), TorqueRows(g, offset, limit)
+
+
+def reference_forces_with_torques(points, contact, com, f_lin, f_ang, rows):
+    """Eq. 14 plus ``|offset - G f| <= limit`` for quadprog (None when infeasible)."""
+    n = len(points)
+    idx = np.flatnonzero(contact)
+    k = len(idx)
+    gk = np.stack([rows.matrix[:, c * n + i] for i in idx for c in range(3)], axis=1)
+
+    def skew(r):
+        return np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
+
+    w = np.hstack([skew(r) for r in points[idx] - com])
+    hess = 2 * (np.diag(np.tile([1.0, 1.0, 0.5], k)) + 5000 * w.T @ w)
+    lin = 2 * 5000 * w.T @ f_ang
+    cons, rhs = [np.tile(np.eye(3), (1, k))], [f_lin]
+    for i in range(k):
+        for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
+            r = np.zeros(3 * k)
+            r[3 * i], r[3 * i + 1], r[3 * i + 2] = -sx, -sy, 0.65
+            cons.append(r[None])
+            rhs.append([0.0])
+        for j, (lo, hi) in enumerate(((-1000, 1000), (-1000, 1000), (5, 3000))):
+            e = np.zeros(3 * k)
+            e[3 * i + j] = 1
+            cons += [e[None], -e[None]]
+            rhs += [[lo], [-hi]]
+    cons += [gk, -gk]
+    rhs += [rows.offset - rows.limit, -rows.offset - rows.limit]
+    try:
+        f = quadprog.solve_qp(
+            hess, lin, np.vstack(cons).T, np.concatenate([np.ravel(x) for x in rhs]), 3
+        )[0]
+    except ValueError:
+        return None
+    full = np.zeros((n, 3))
+    full[idx] = f.reshape(-1, 3)
+    return full
+
+
+def test_torque_limit_rows_against_quadprog():
+    """With torque rows (float64, cold, 1000 iterations), on problems where some limits
+    bind and quadprog finds a solution: the objective matches quadprog's and the torques
+    keep their limits, for most problems to 1e-4; ADMM converges slowly on a few, whose
+    excess is still reported. Loose limits change nothing."""
+    rng = np.random.default_rng(0)
+    params = ForceQPParams(iterations=1000)
+    errors, excess, checked = [], [], 0
+    while checked < 40:
+        problem, rows = _torque_problem(rng, tight=1.0)
+        ref = reference_forces_with_torques(*problem, rows)
+        if ref is None:
+            continue
+        checked += 1
+        sol = solve_contact_forces(*problem, params, torques=rows)
+        points, _c, com, _fl, f_ang = problem
+        o_ref = force_objective(ref, points, com, f_ang)
+        o = force_objective(np.asarray(sol.forces), points, com, f_ang)
+        errors.append(abs(o - o_ref) / o_ref)
+        tau = rows.offset - rows.matrix @ np.asarray(sol.forces).T.reshape(-1)
+        excess.append(max(np.max(np.abs(tau) - rows.limit), 0.0))
+        np.testing.assert_allclose(float(sol.torque_excess), excess[-1], atol=1e-6)
+        assert float(sol.linear_residual) < 1.0  # N, of a net force over 1000 N
+    errors, excess = np.array(errors), np.array(excess)
+    assert np.median(errors) < 1e-4 and np.mean(errors < 1e-2) >= 0.8, errors
+    assert np.median(excess) < 1e-3 and np.mean(excess < 0.5) >= 0.8, excess
+    # Limits far from binding: the plain QP's forces.
+    problem, rows = _torque_problem(rng, tight=100.0)
+    plain = solve_contact_forces(*problem, params)
+    with_rows = solve_contact_forces(*problem, params, torques=rows)
+    np.testing.assert_allclose(with_rows.forces, plain.forces, atol=1e-3)
+    assert float(with_rows.torque_excess) == 0.0
+
+
+def test_unreachable_torque_limits_are_reported_not_forced():
+    """Limits no forces can meet: the net force is still carried (the duals are bounded),
+    the forces stay finite and the excess is reported."""
+    from jaxloco.control.force_qp import TorqueRows
+
+    rng = np.random.default_rng(3)
+    problem, rows = _torque_problem(rng, tight=1.0)
+    impossible = TorqueRows(rows.matrix, rows.offset + 1e4, rows.limit)
+    warm = zero_warm_start(8, jnp.float64, 12)
+    for _ in range(20):  # a closed loop would carry the duals tick after tick
+        sol = solve_contact_forces(
+            *problem, ForceQPParams(iterations=150), warm_start=warm, torques=impossible
+        )
+        warm = sol.warm_start
+    assert np.all(np.isfinite(sol.forces))
+    assert float(sol.linear_residual) < 1.0
+    assert float(sol.torque_excess) > 1e3
+    with pytest.raises(ValueError, match="warm_start has 0 torque rows, the problem 12"):
+        solve_contact_forces(*problem, warm_start=zero_warm_start(8), torques=impossible)

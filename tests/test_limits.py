@@ -2,6 +2,8 @@
 CI-sized search on MuJoCo C through the CLI (resumed, reported)."""
 
 import json
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -159,3 +161,45 @@ def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path):
     manifest = json.loads((run / "round_01" / "manifest.json").read_text())
     assert len(manifest["runs"]) == 1  # nothing ran twice
     assert json.loads((run / "summary.json").read_text())["cells"] == summary["cells"]
+
+
+def test_limit_searches_compare_per_direction(tmp_path):
+    """Two searches of the same cells (e.g. two torque bounds) side by side: per direction
+    the worst phase's limit and the median, from their summaries, through the CLI too."""
+    from jaxloco.sweep.limits_report import compare_limit_summaries
+
+    search = LimitSearch(**SMALL)
+    n = len(search.cells())
+    strong = np.full(n, 100.0)
+    weak = np.linspace(10.0, 90.0, n)
+    summaries = {}
+    for label, true in (("bound", strong), ("model", weak)):
+        res = search_limits(search, tmp_path / label, _robot(search, true), progress=False)
+        summaries[label] = res.summary()
+        (tmp_path / label / "summary.json").write_text(json.dumps(summaries[label]))
+    cmp = compare_limit_summaries(summaries)
+    assert cmp["labels"] == ["bound", "model"]
+    row = cmp["variants"]["replan, 0.1 s"]["per_direction"]["90"]
+    cells = [k for k, c in enumerate(search.cells()) if c[0] == 90.0 and c[2] == 0.1 and c[3]]
+    model_limits = [summaries["model"]["cells"][k]["limit_Ns"] for k in cells]
+    assert row["model"]["worst_phase_Ns"] == min(model_limits)
+    assert row["model"]["median_Ns"] == float(np.median(model_limits))
+    assert row["bound"]["worst_phase_Ns"] > row["model"]["worst_phase_Ns"]
+    other = json.loads(json.dumps(summaries["model"]))
+    other["search"]["phases"] = [0.5]
+    with pytest.raises(ValueError, match="search.phases"):
+        compare_limit_summaries({"bound": summaries["bound"], "other": other})
+
+    def compare_cli(*args):
+        command = [sys.executable, "-m", "jaxloco.cli", "limits-compare", *args]
+        return subprocess.run(command, capture_output=True, text=True, timeout=300)
+
+    proc = compare_cli(
+        str(tmp_path / "bound"), str(tmp_path / "model"), "--labels", "500 N m", "model",
+        "--out", str(tmp_path / "cmp"),
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "| 90 deg |" in (tmp_path / "cmp" / "comparison.md").read_text()
+    assert (tmp_path / "cmp" / "comparison_polar.png").stat().st_size > 0
+    bad = compare_cli(str(tmp_path / "bound"), "--out", str(tmp_path / "x"))
+    assert bad.returncode != 0 and "at least two" in bad.stderr

@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 from jax.test_util import check_grads
 
+from jaxloco.control.force_qp import ForceQPParams
 from jaxloco.control.hierarchy import prioritized_accelerations
 from jaxloco.control.pinv import damped_pinv_psd, pinv_psd, rank
-from jaxloco.control.presets import wblc_config
+from jaxloco.control.presets import walking_config, wblc_config
 from jaxloco.control.wblc import make_wblc
 from jaxloco.dynamics import jacobians as J
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
+from jaxloco.robots.valkyrie import LEG_JOINTS
 from jaxloco.sim import run_closed_loop
 
 RNG = np.random.default_rng(0)
@@ -328,6 +330,81 @@ def test_the_tick_is_its_four_stages(valkyrie):
     np.testing.assert_allclose(staged.torques, whole.torques, rtol=1e-10, atol=1e-10)
     right = next(t for t in ctrl.config.tasks if t.name == "right_contact")
     assert float(jnp.abs(terms[right.name].jacobian).max()) == 0.0
+
+
+def test_torque_rows_are_the_legs_torques_as_a_map_of_the_forces(valkyrie):
+    """The force QP's torque rows (``torque_limits_in_qp``), evaluated at the forces it
+    returns, are the torque stage's leg and floating-base rows (up to the null-space term,
+    zero at ``qdd_res = 0``); the leg rows are the 12 leg joints."""
+    from jaxloco.control import wblc as w
+
+    model, data, _, refs, _ = valkyrie
+    ctrl = make_wblc(model, wblc_config("walking", torque_limits_in_qp=True))
+    names = [model.actuator(a).name for a in ctrl.foot_actuators]
+    assert len(names) == 12 and all(n.split("_")[1] in LEG_JOINTS for n in names)
+    q = jnp.asarray(data.qpos)
+    v = jnp.asarray(np.random.default_rng(4).normal(0, 0.3, model.nv))
+    contact = jnp.asarray([1.0, 0.0])
+    gains = ctrl.default_gains()
+
+    def rows_and_torques(q, v):
+        snap = ctrl.snapshot(q, v)
+        terms = w.task_stage(ctrl, snap, refs, contact, gains)
+        hier = w.hierarchy_stage(ctrl, snap, terms, refs[ctrl.config.cam_task].weight)
+        forces = w.force_stage(ctrl, snap, terms, hier, contact, ctrl.initial_qp_state())
+        points = snap.data.site_xpos[jnp.asarray(ctrl.point_sites)]
+        cam_rate = snap.centroidal_matrix[:3] @ hier.qdd[:, 0] + snap.centroidal_bias[:3]
+        in_contact = contact[jnp.asarray(ctrl.foot_of_point)] > 0
+        rows = w.torque_rows(ctrl, snap, hier, cam_rate, points, in_contact)
+        f = forces.solution.forces
+        tau_task = (
+            snap.mass_matrix @ (hier.qdd @ forces.cam_shift)
+            + snap.coriolis
+            + snap.gravity
+            - w.contact_generalized_force(ctrl, snap.data, f)
+        )
+        return rows, f, tau_task
+
+    rows, f, tau_task = jax.jit(rows_and_torques)(q, v)
+    dofs = np.asarray(ctrl.actuated_dofs)[list(ctrl.foot_actuators)]
+    dofs = np.concatenate([dofs, ctrl.base_rotation_dofs])
+    predicted = rows.offset - rows.matrix @ f.T.reshape(-1)
+    np.testing.assert_allclose(predicted, tau_task[dofs], rtol=1e-8, atol=1e-6)
+
+
+@pytest.mark.parametrize("scale", [0.9, 0.7])
+def test_torque_limits_in_qp_keep_a_reachable_limit(valkyrie, scale):
+    """Standing in double support, the most loaded leg joint's limit set to ``scale`` of
+    the torque the paper's WBLC gives it: the forces shift between the feet and the torque
+    stays within it, the floating-base rows still met (cold start). An actuator without a
+    limit is refused."""
+    model, data, plain, refs, _ = valkyrie
+    q = jnp.asarray(data.qpos)
+    v = jnp.asarray(np.random.default_rng(4).normal(0, 0.3, model.nv))
+    contact = jnp.ones(2)
+    free = np.asarray(plain(q, v, refs, contact).torques)
+    tight = load_valkyrie()
+    legs = list(make_wblc(tight, wblc_config("walking")).foot_actuators)
+    limits = np.abs(tight.actuator_ctrlrange).max(1)
+    joint = legs[int(np.argmax(np.abs(free[legs]) / limits[legs]))]
+    limits[joint] = scale * abs(free[joint])
+    tight.actuator_ctrlrange[:] = np.stack([-limits, limits], axis=1)
+    cold = ForceQPParams()  # a cold start: the cold settings, not the warm closed loop's
+    ctrl = make_wblc(tight, walking_config(torque_limits_in_qp=True, force_qp=cold))
+    out = ctrl(q, v, refs, contact)
+    # The QP's forces meet the limit; the torque stage's null-space term adds < 1 N m
+    # (against 19 N m and 58 N m over without the rows).
+    assert abs(float(out.torques[joint])) <= limits[joint] + 1.0
+    assert float(out.diagnostics.qp_torque_excess) < 0.5
+    # The base rows as well met as without the rows (the damped first level leaves them
+    # ~1.5 N m either way).
+    unlimited = make_wblc(model, walking_config(force_qp=cold))(q, v, refs, contact)
+    base = float(jnp.max(jnp.abs(out.diagnostics.base_residual)))
+    assert base < float(jnp.max(jnp.abs(unlimited.diagnostics.base_residual))) + 0.5
+    tight.actuator_ctrllimited[joint] = 0
+    name = tight.actuator(joint).name
+    with pytest.raises(ValueError, match=f"torque_limits_in_qp needs an effort limit.*{name}"):
+        make_wblc(tight, wblc_config("walking", torque_limits_in_qp=True))
 
 
 @pytest.mark.parametrize("rank", [4, 20])

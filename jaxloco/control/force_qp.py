@@ -71,16 +71,18 @@ class ForceQPParams:
     """Over-relaxation of the ``z``-step (1: none; OSQP's default 1.6)."""
     force_scale: float = 100.0
     """Forces are solved in units of this many newtons (conditioning)."""
-    torque_rho: float = 1.0
-    """ADMM penalty of the torque-limit rows (with :class:`TorqueRows`), relative to
-    ``rho`` times the mean diagonal of the rows' Gram matrix (rows in units of their
-    limit)."""
-    torque_dual_max: float = 10.0
+    torque_rho: float = 3.0
+    """ADMM penalty of the torque-limit rows (with :class:`TorqueRows`, each row scaled to
+    unit norm), relative to ``rho``. Against quadprog on random leg-like rows, 1000 cold
+    iterations: median objective error 4e-7 at 3, 5e-6 at 1, 1e-6 at 0.3 (90th percentiles
+    5e-3, 2e-2, 1e-2)."""
+    torque_dual_max: float = 100.0
     """Bound on the scaled dual of each torque-limit row. Where the forces cannot bring a
-    torque within its limit (an upper-body joint the feet do not reach, a push beyond what
-    the legs carry), an unbounded dual would grow tick after tick and pull the forces off
-    the net-force equality; bounded, a violated row is an exact L1 penalty of this weight
-    (times the penalty) and the violation is reported (``torque_excess``)."""
+    torque within its limit (a push beyond what the legs carry), an unbounded dual would
+    grow tick after tick and pull the forces off the net-force equality; bounded, a
+    violated row is an exact L1 penalty of this weight (times the penalty) and the
+    violation is reported (``torque_excess``). At 10 the bound cut into feasible rows
+    (violations up to 55 N m where quadprog met every limit)."""
 
     def __post_init__(self):
         v.check_fields(
@@ -142,7 +144,8 @@ class ForceQPSolution:
     """True when not even the relaxed pyramid can: ``linear_residual`` is then large."""
     torque_excess: jax.Array
     """With :class:`TorqueRows`: the largest amount (N m) by which the forces leave a
-    torque beyond its limit (0 within every limit; 0 without rows)."""
+    torque beyond its limit (0 within every limit, and without rows; equality rows are not
+    counted)."""
     warm_start: ForceQPState
     """Pass back next tick."""
 
@@ -165,7 +168,8 @@ class TorqueRows:
     offset: jax.Array
     """(m,) the torques at zero contact force (N m)."""
     limit: jax.Array
-    """(m,) each row's bound (N m, > 0 and finite)."""
+    """(m,) each row's bound (N m, finite; 0: the row is an equality, ``offset = matrix
+    f``)."""
 
 
 def net_force_feasible(f_lin, in_contact, fz_max, mu, params: ForceQPParams):
@@ -479,7 +483,10 @@ def solve_contact_forces(
             matrix, offset, rows, lo, hi, fz_lo, fz_hi, mu, params, warm_start
         )
         tau = offset_t - (rows @ state.z.reshape(-1)) * norm
-        torque_excess = jnp.max(jnp.maximum(jnp.abs(tau) - limit, 0.0))
+        # Equality rows (limit 0) are not limits: what they miss shows in the caller's
+        # own residuals (WBLC's base_residual).
+        over = jnp.where(limit > 0, jnp.abs(tau) - limit, 0.0)
+        torque_excess = jnp.max(jnp.maximum(over, 0.0))
     forces = state.z.T * s
     return ForceQPSolution(
         forces=forces,

@@ -219,6 +219,8 @@ class WBLC:
     foot_actuators: tuple[int, ...]
     """Actuators whose joints carry a foot (a contact point's body or one of its
     ancestors): the torques the contact forces reach, the rows of ``torque_limits_in_qp``."""
+    base_rotation_dofs: tuple[int, ...]
+    """The free joint's rotational dofs (empty for a fixed base)."""
 
     def default_gains(self) -> dict:
         return default_gains(self.config.tasks)
@@ -236,7 +238,8 @@ class WBLC:
         }
 
     def initial_qp_state(self, dtype=None) -> force_qp.ForceQPState:
-        rows = len(self.foot_actuators) if self.config.torque_limits_in_qp else 0
+        rows = len(self.foot_actuators) + len(self.base_rotation_dofs)
+        rows = rows if self.config.torque_limits_in_qp else 0
         return force_qp.zero_warm_start(len(self.point_sites), dtype, rows)
 
     def __call__(
@@ -291,6 +294,8 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
             carrying.update(range(start, start + count))
             body = int(model.body_parentid[body])
     foot_actuators = tuple(a for a, dof in enumerate(dofs.tolist()) if dof in carrying)
+    free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
+    base_rotation = tuple(int(model.jnt_dofadr[j]) + k for j in free[:1] for k in (3, 4, 5))
     return WBLC(
         model,
         mx,
@@ -303,6 +308,7 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
         unactuated,
         tuple(int(v) for v in dofs),
         foot_actuators,
+        base_rotation,
     )
 
 
@@ -493,8 +499,15 @@ def torque_rows(
     jac_t = contact_jacobian(ctrl, d, points).T  # (nv, 3n)
     matrix = jac_t - snap.mass_matrix @ (q_cam @ moment)
     rows = np.asarray(ctrl.foot_actuators)
-    dofs = jnp.asarray(np.asarray(ctrl.actuated_dofs)[rows])
-    return force_qp.TorqueRows(matrix[dofs], offset[dofs], ctrl.torque_limits[rows])
+    dofs = np.asarray(ctrl.actuated_dofs)[rows]
+    # The floating base's rotational rows are equalities (limit 0): forces whose moment
+    # strayed from the hierarchy's would leave Eq. 17's base rows unmet. Its translational
+    # rows are the net force, already the QP's hard equality (with the CoM task's command:
+    # written twice, the two differ by what the hierarchy leaves of that command).
+    base = np.asarray(ctrl.base_rotation_dofs, int)
+    every = jnp.asarray(np.concatenate([dofs, base]))
+    limits = jnp.concatenate([ctrl.torque_limits[rows], jnp.zeros(len(base), offset.dtype)])
+    return force_qp.TorqueRows(matrix[every], offset[every], limits)
 
 
 def contact_jacobian(ctrl: WBLC, d, points):
