@@ -1,5 +1,7 @@
 """WBLC per control tick on Valkyrie: latency, batched throughput, a profile by stage, the
-force QP's accuracy against quadprog by iteration count, and PlaCo's C++ whole-body QP.
+force QP's accuracy against quadprog by iteration count, what keeping the legs within
+their effort limits in the force QP costs (``torque_limits_in_qp``, interleaved with the
+paper's WBLC), and PlaCo's C++ whole-body QP.
 
     python benchmarks/bench_wblc.py [--json PATH] [--quick]
 
@@ -117,6 +119,31 @@ def _torque_stand_in(ctrl, a_null, tau_task, rtol):
     base = jnp.asarray(ctrl.unactuated_dofs)
     return wblc_module.TorqueSolution(
         tau_task[dofs] + a_null[0, 0], jnp.zeros_like(tau_task), tau_task[base]
+    )
+
+
+def torque_limits_cost(model, refs, q, batch: int, rounds: int) -> dict:
+    """The batched tick with and without ``torque_limits_in_qp``, interleaved: what keeping
+    the legs within their effort limits costs."""
+    contact = jnp.ones(2, jnp.float32)
+    v = jnp.asarray(np.random.default_rng(1).normal(0, 0.1, (batch, model.nv)), jnp.float32)
+    qb = jnp.broadcast_to(q, (batch, model.nq))
+    calls, compile_s = {}, 0.0
+    for name, flag in (("plain", False), ("limited", True)):
+        c = make_wblc(model, walking_config(torque_limits_in_qp=flag))
+        prev = c.initial_qp_state(jnp.float32)
+        pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
+        tick = jax.jit(jax.vmap(lambda q, v, p, c=c: c(q, v, refs, contact, previous=p)))
+        seconds, compiled = compile_seconds(tick, qb, v, pb)
+        compile_s = seconds if flag else compile_s
+        calls[name] = (lambda compiled=compiled, pb=pb: compiled(qb, v, pb), batch)
+    t = interleaved(calls, rounds)
+    return dict(
+        plain_us=t["plain"] * 1e6,
+        limited_us=t["limited"] * 1e6,
+        ratio=1.0 / t["plain/limited"],
+        compile_s=compile_s,
+        rounds=rounds,
     )
 
 
@@ -360,6 +387,7 @@ def main():
             rows.append(peer_row(peer, repeats))
             fn, fn_args = batched_calls[64]
             duel = head_to_head(fn, fn_args, 64, peer, 41 if args.quick else 101)
+        limits_cost = torque_limits_cost(model, refs, q, 64, 21 if args.quick else 61)
         ablation = ablation_rows(ctrl, refs, q, 64, repeats)
         accuracy = qp_accuracy_table(200 if args.quick else 1000)
     base = rows[0]["per_tick_us"]
@@ -411,6 +439,19 @@ def main():
     )
     tables.append(
         print_table(
+            "Torque limits in the force QP (legs within the model's effort limits): batch 64, "
+            f"interleaved ({limits_cost['rounds']} rounds; medians)",
+            [limits_cost],
+            [
+                ("plain_us", "paper's WBLC us/robot-tick", ".1f"),
+                ("limited_us", "with torque rows us/robot-tick", ".1f"),
+                ("compile_s", "compile s (with rows)", ".1f"),
+                ("ratio", "with rows / without (median per round)", ".3f"),
+            ],
+        )
+    )
+    tables.append(
+        print_table(
             "Force QP vs quadprog (float64), by ADMM iterations",
             accuracy,
             [
@@ -441,6 +482,7 @@ def main():
             "rows": rows,
             "ablation": ablation,
             "qp_accuracy": accuracy,
+            "torque_limits_cost": limits_cost,
             "peer": None if peer is None else peer[0],
             "side_by_side": duel,
             "pinned_core": core,

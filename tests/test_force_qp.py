@@ -40,15 +40,15 @@ def contact_problem(rng, max_accel=3.0):
     return points, contact, com, f_lin, f_ang
 
 
-def reference_forces(points, contact, com, f_lin, f_ang, mu=0.65):
-    """Eq. 14 written directly for quadprog, in newtons, variables for contact points only."""
-    pts = points[contact]
-    k = len(pts)
+def eq14_for_quadprog(points, idx, com, f_lin, f_ang, mu=0.65):
+    """Eq. 14 over the points ``idx`` for quadprog, in newtons: Hessian, linear term, and
+    constraint rows with their right-hand sides (the net force first, as equalities)."""
+    k = len(idx)
 
     def skew(r):
         return np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
 
-    W = np.hstack([skew(r) for r in pts - com])
+    W = np.hstack([skew(r) for r in points[idx] - com])
     G = 2 * (np.diag(np.tile([1.0, 1.0, 0.5], k)) + 5000 * W.T @ W)
     a = 2 * 5000 * W.T @ f_ang
     rows, rhs = [np.tile(np.eye(3), (1, k))], [f_lin]
@@ -63,10 +63,20 @@ def reference_forces(points, contact, com, f_lin, f_ang, mu=0.65):
             e[3 * i + j] = 1
             rows += [e[None], -e[None]]
             rhs += [[lo], [-hi]]
+    return G, a, rows, rhs
+
+
+def _solve_qp(points, idx, G, a, rows, rhs):
     f = quadprog.solve_qp(G, a, np.vstack(rows).T, np.concatenate([np.ravel(x) for x in rhs]), 3)[0]
     full = np.zeros((len(points), 3))
-    full[contact] = f.reshape(-1, 3)
+    full[idx] = f.reshape(-1, 3)
     return full
+
+
+def reference_forces(points, contact, com, f_lin, f_ang, mu=0.65):
+    """Eq. 14 written directly for quadprog, in newtons, variables for contact points only."""
+    idx = np.flatnonzero(contact)
+    return _solve_qp(points, idx, *eq14_for_quadprog(points, idx, com, f_lin, f_ang, mu))
 
 
 def force_objective(forces, points, com, f_ang):
@@ -398,40 +408,15 @@ def _torque_problem(rng, tight):
 
 def reference_forces_with_torques(points, contact, com, f_lin, f_ang, rows):
     """Eq. 14 plus ``|offset - G f| <= limit`` for quadprog (None when infeasible)."""
-    n = len(points)
-    idx = np.flatnonzero(contact)
-    k = len(idx)
+    n, idx = len(points), np.flatnonzero(contact)
     gk = np.stack([rows.matrix[:, c * n + i] for i in idx for c in range(3)], axis=1)
-
-    def skew(r):
-        return np.array([[0, -r[2], r[1]], [r[2], 0, -r[0]], [-r[1], r[0], 0]])
-
-    w = np.hstack([skew(r) for r in points[idx] - com])
-    hess = 2 * (np.diag(np.tile([1.0, 1.0, 0.5], k)) + 5000 * w.T @ w)
-    lin = 2 * 5000 * w.T @ f_ang
-    cons, rhs = [np.tile(np.eye(3), (1, k))], [f_lin]
-    for i in range(k):
-        for sx, sy in ((1, 0), (-1, 0), (0, 1), (0, -1)):
-            r = np.zeros(3 * k)
-            r[3 * i], r[3 * i + 1], r[3 * i + 2] = -sx, -sy, 0.65
-            cons.append(r[None])
-            rhs.append([0.0])
-        for j, (lo, hi) in enumerate(((-1000, 1000), (-1000, 1000), (5, 3000))):
-            e = np.zeros(3 * k)
-            e[3 * i + j] = 1
-            cons += [e[None], -e[None]]
-            rhs += [[lo], [-hi]]
+    G, a, cons, rhs = eq14_for_quadprog(points, idx, com, f_lin, f_ang)
     cons += [gk, -gk]
     rhs += [rows.offset - rows.limit, -rows.offset - rows.limit]
     try:
-        f = quadprog.solve_qp(
-            hess, lin, np.vstack(cons).T, np.concatenate([np.ravel(x) for x in rhs]), 3
-        )[0]
+        return _solve_qp(points, idx, G, a, cons, rhs)
     except ValueError:
         return None
-    full = np.zeros((n, 3))
-    full[idx] = f.reshape(-1, 3)
-    return full
 
 
 def test_torque_limit_rows_against_quadprog():

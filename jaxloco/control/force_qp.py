@@ -262,15 +262,7 @@ def affine_step(points, in_contact, com, f_lin, f_ang, params: ForceQPParams):
     s = params.force_scale
     on = in_contact.astype(dtype)
     r = (points - com) * on[:, None]  # points out of contact take no part
-    zero = jnp.zeros(n, dtype)
-    # Rows of W_ang (moment = sum r x f), coordinate-major columns [fx..., fy..., fz...].
-    w_ang = jnp.stack(
-        [
-            jnp.concatenate([zero, -r[:, 2], r[:, 1]]),
-            jnp.concatenate([r[:, 2], zero, -r[:, 0]]),
-            jnp.concatenate([-r[:, 1], r[:, 0], zero]),
-        ]
-    )
+    w_ang = moment_map(points, in_contact, com)
     w_lin = jnp.kron(jnp.eye(3, dtype=dtype), on[None, :])  # (3, 3n)
     weights = jnp.repeat(
         jnp.asarray(
