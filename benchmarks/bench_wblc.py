@@ -99,11 +99,22 @@ def stage_functions(ctrl, refs):
     }, qp_only
 
 
-def _qp_stand_in(points, in_contact, com, f_lin, f_ang, params, fz_max=None, warm_start=None):
+def _qp_stand_in(
+    points, in_contact, com, f_lin, f_ang, params, fz_max=None, warm_start=None, torques=None
+):
     n = points.shape[0]
     zero = jnp.zeros((), points.dtype)
     forces = jnp.zeros((n, 3), points.dtype) + f_lin / n
-    return force_qp.ForceQPSolution(forces, f_ang, zero, zero, zero > 0, zero > 0, warm_start)
+    return force_qp.ForceQPSolution(
+        forces=forces,
+        angular=f_ang,
+        linear_residual=zero,
+        primal_residual=zero,
+        relaxed=zero > 0,
+        infeasible=zero > 0,
+        torque_excess=zero,
+        warm_start=warm_start,
+    )
 
 
 def _hierarchy_stand_in(jacs, cmds, mass_cholesky, rtol, whiten, inverse, cholesky_inverse):
