@@ -426,29 +426,34 @@ def test_torque_limit_rows_against_quadprog():
     excess is still reported. Loose limits change nothing."""
     rng = np.random.default_rng(0)
     params = ForceQPParams(iterations=1000)
-    errors, excess, checked = [], [], 0
-    while checked < 40:
+    problems, refs = [], []
+    while len(problems) < 40:
         problem, rows = _torque_problem(rng, tight=1.0)
         ref = reference_forces_with_torques(*problem, rows)
-        if ref is None:
-            continue
-        checked += 1
-        sol = solve_contact_forces(*problem, params, torques=rows)
+        if ref is not None:
+            problems.append((problem, rows))
+            refs.append(ref)
+    batch = [jnp.asarray(np.stack(z)) for z in zip(*(p for p, _ in problems), strict=True)]
+    rows = jax.tree.map(lambda *xs: jnp.asarray(np.stack(xs)), *(r for _, r in problems))
+    solve = jax.jit(jax.vmap(lambda *a: solve_contact_forces(*a[:5], params, torques=a[5])))
+    sol = solve(*batch, rows)
+    errors, excess = [], []
+    for i, ((problem, row), ref) in enumerate(zip(problems, refs, strict=True)):
         points, _c, com, _fl, f_ang = problem
+        forces = np.asarray(sol.forces[i])
         o_ref = force_objective(ref, points, com, f_ang)
-        o = force_objective(np.asarray(sol.forces), points, com, f_ang)
-        errors.append(abs(o - o_ref) / o_ref)
-        tau = rows.offset - rows.matrix @ np.asarray(sol.forces).T.reshape(-1)
-        excess.append(max(np.max(np.abs(tau) - rows.limit), 0.0))
-        np.testing.assert_allclose(float(sol.torque_excess), excess[-1], atol=1e-6)
-        assert float(sol.linear_residual) < 1.0  # N, of a net force over 1000 N
+        errors.append(abs(force_objective(forces, points, com, f_ang) - o_ref) / o_ref)
+        tau = row.offset - row.matrix @ forces.T.reshape(-1)
+        excess.append(max(np.max(np.abs(tau) - row.limit), 0.0))
+        np.testing.assert_allclose(float(sol.torque_excess[i]), excess[-1], atol=1e-6)
+        assert float(sol.linear_residual[i]) < 1.0  # N, of a net force over 1000 N
     errors, excess = np.array(errors), np.array(excess)
     assert np.median(errors) < 1e-4 and np.mean(errors < 1e-2) >= 0.8, errors
     assert np.median(excess) < 1e-3 and np.mean(excess < 0.5) >= 0.8, excess
     # Limits far from binding: the plain QP's forces.
-    problem, rows = _torque_problem(rng, tight=100.0)
+    problem, loose = _torque_problem(rng, tight=100.0)
     plain = solve_contact_forces(*problem, params)
-    with_rows = solve_contact_forces(*problem, params, torques=rows)
+    with_rows = solve_contact_forces(*problem, params, torques=loose)
     np.testing.assert_allclose(with_rows.forces, plain.forces, atol=1e-3)
     assert float(with_rows.torque_excess) == 0.0
 
