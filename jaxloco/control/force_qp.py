@@ -121,8 +121,8 @@ class ForceQPState:
     u: jax.Array
     """(3, n) scaled dual of ``f = z``."""
     torque_z: jax.Array
-    """(m,) torque-limit rows' projected values (units of each row's limit; ``m = 0``
-    without :class:`TorqueRows`)."""
+    """(m,) torque rows' projected values (each row scaled to unit norm in the force
+    units; ``m = 0`` without :class:`TorqueRows`)."""
     torque_u: jax.Array
     """(m,) their scaled duals."""
 

@@ -101,15 +101,16 @@ class WBLCConfig:
     torque_pinv_rtol: float = 1e-8
     """The same for Eq. 19's ``[U', -A N]``."""
     torque_limits_in_qp: bool = False
-    """Keep every actuator within the model's effort limits (control range times gear) in
-    the force QP: the torques of Eq. 11 of the joints that carry a foot, an affine map of
-    the contact forces once the hierarchy has set the task accelerations (the CAM command
-    through Eq. 15), become inequality rows of Eq. 14
-    (:class:`~jaxloco.control.force_qp.TorqueRows`). The forces move the centre of
-    pressure and the split between the feet to bring the legs within their limits; a leg
-    torque the forces cannot bring within its limit is reported (``qp_torque_excess``), and
-    the upper body's torques, which the forces do not reach, are the hierarchy's (flagged in
-    ``torque_over_limit``). Off: the paper's WBLC, torques unbounded."""
+    """Keep the joints that carry a foot within the model's effort limits (control range
+    times gear) in the force QP: their torques of Eq. 11, an affine map of the contact
+    forces once the hierarchy has set the task accelerations (the CAM command through Eq.
+    15), become inequality rows of Eq. 14, and the floating base's rotational rows
+    equalities (:class:`~jaxloco.control.force_qp.TorqueRows`, :func:`torque_rows`). The
+    forces move the centre of pressure and the split between the feet to bring the legs
+    within their limits; a leg torque the forces cannot bring within its limit is reported
+    (``qp_torque_excess``), and the upper body's torques, which the forces do not reach, are
+    the hierarchy's (flagged in ``torque_over_limit``). Off: the paper's WBLC, torques
+    unbounded."""
 
     def __post_init__(self):
         names = [t.name for t in self.tasks]
@@ -484,7 +485,8 @@ def torque_rows(
     ctrl: WBLC, snap: RobotSnapshot, hier: HierarchyResult, cam_rate, points, in_contact
 ) -> force_qp.TorqueRows:
     """The rows of Eq. 11 of the joints that carry a foot (``foot_actuators``; the forces
-    reach no other torque but through the CAM command) as an affine map of the contact
+    reach no other torque but through the CAM command), limited by their effort limits,
+    and of the floating base's rotation, as equalities: an affine map of the contact
     forces (N m).
 
     With the hierarchy's accelerations ``qdd = Q [1; W_ang f - cam_rate]`` (Eq. 15 sets
