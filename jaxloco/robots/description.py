@@ -15,7 +15,7 @@ import dataclasses
 import mujoco
 import numpy as np
 
-from jaxloco.dynamics.model import load_model
+from jaxloco.dynamics.model import keyframe_qpos, load_model
 
 
 @dataclasses.dataclass(frozen=True)
@@ -111,7 +111,8 @@ class RobotDescription:
         return tuple(model.site(foot.frame).id for foot in self.feet)
 
     def keyframe_qpos(self, model: mujoco.MjModel) -> np.ndarray:
-        return model.key(self.keyframe).qpos.copy()
+        """The ``qpos`` of the robot's keyframe in ``model``."""
+        return keyframe_qpos(model, self.keyframe)
 
 
 def effort_limits(model: mujoco.MjModel) -> np.ndarray:
