@@ -45,7 +45,7 @@ from tqdm.auto import tqdm
 
 from jaxloco import validation as v
 from jaxloco.learning import policy as pol
-from jaxloco.learning.evaluation import mean_weights_policy
+from jaxloco.learning.evaluation import mean_weights_policy, steps_survived
 from jaxloco.learning.starts import StartStates, uniform_states
 from jaxloco.planner import PSPParams, plan_step, safety_margins, smooth_reward
 from jaxloco.runtime import cpu_compiler_options
@@ -80,6 +80,15 @@ class RefineConfig:
     average: float = 0.9
     """Decay of the running average of the weights that is evaluated and kept (0: the
     current weights). Averaging smooths the step-to-step noise of the fresh batches."""
+    anchor_weight: float = 0.0
+    """Weight of a pull towards the starting policy's mean actions (0: none). The penalty
+    is the mean over the batch's start states from which the starting policy survives
+    ``anchor_steps`` steps of the squared action change, each axis in units of its action
+    box width: the refinement then fixes the states the starting policy fails from and
+    keeps its actions (and so its nominal gait) where it already walks."""
+    anchor_steps: int = 10
+    """Steps the starting policy must survive from a start state for the anchor to hold
+    there."""
     seed: int = 0
 
     def __post_init__(self):
@@ -90,7 +99,8 @@ class RefineConfig:
                 v.integer(self, "batch", 1),
                 v.integer(self, "horizon", 1),
                 *v.positive(self, "learning_rate", "adam_eps", "sharpness"),
-                *v.non_negative(self, "clip_norm", "margin", "reward_weight"),
+                v.integer(self, "anchor_steps", 1),
+                *v.non_negative(self, "clip_norm", "margin", "reward_weight", "anchor_weight"),
                 ("average", 0.0 <= self.average < 1.0, "in [0, 1)"),
                 *v.unit_interval(self, "discount"),
                 (
@@ -154,10 +164,19 @@ def make_refine_step(
     if cfg.clip_norm > 0:
         optimizer = optax.chain(optax.clip_by_global_norm(cfg.clip_norm), optimizer)
 
+    anchor = mean_weights_policy(*_mean_weights(params), grid, psp)
+    width = jnp.asarray(psp.action_high) - jnp.asarray(psp.action_low)
+
     def objective(weights, key):
         policy = mean_weights_policy(*weights, grid, psp)
         s0 = uniform_states(key, cfg.batch, starts).astype(weights[0].dtype)
-        return jnp.mean(jax.vmap(lambda s: rollout_objective(policy, s, psp, cfg))(s0))
+        total = jnp.mean(jax.vmap(lambda s: rollout_objective(policy, s, psp, cfg))(s0))
+        if cfg.anchor_weight == 0:
+            return total
+        held = steps_survived(anchor, s0, psp, cfg.anchor_steps) == cfg.anchor_steps
+        change = (jax.vmap(policy)(s0) - jax.vmap(anchor)(s0)) / width.astype(s0.dtype)
+        penalty = jnp.mean(jnp.where(held, jnp.sum(change**2, axis=-1), 0.0))
+        return total - cfg.anchor_weight * penalty
 
     @functools.partial(jax.jit, compiler_options=cpu_compiler_options())
     def step(weights, opt_state, key):
