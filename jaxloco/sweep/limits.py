@@ -73,6 +73,10 @@ class LimitSearch:
     """Runs per tested impulse, each from a new draw of the start-state noise."""
     min_recovered: int = 4
     """Replicas that must recover for the impulse to count as recovered."""
+    first_seed: int = 1
+    """Noise seed of the first replica; the replicas use ``first_seed, first_seed + 1,
+    ...``. Another value repeats the search on independent noise draws, which shows how
+    much of a difference between two searches is the noise's."""
     qvel_noise: float = 0.01
     """Std of the noise added to every joint velocity at the push's start."""
     apex_speed: float = 1.0
@@ -111,6 +115,7 @@ class LimitSearch:
                 ),
                 v.integer(self, "rounds", 1),
                 v.integer(self, "replicas", 1),
+                v.integer(self, "first_seed", 0),
                 (
                     "min_recovered",
                     int(self.min_recovered) == self.min_recovered
@@ -187,10 +192,13 @@ class Brackets:
 def round_table(search: LimitSearch, impulses: np.ndarray, cells=None, seeds=None) -> PushTable:
     """The pushes of (a stage of) one round: each of ``cells`` (indices; default all) at its
     impulse (N s, one per cell of the search), one row per replica seed in ``seeds``
-    (default ``1..replicas``; the noise draw also depends on the row)."""
+    (default all replicas': ``first_seed, first_seed + 1, ...``; the noise draw also
+    depends on the row)."""
     all_cells = search.cells()
     cells = range(len(all_cells)) if cells is None else cells
-    seeds = range(1, search.replicas + 1) if seeds is None else seeds
+    seeds = (
+        range(search.first_seed, search.first_seed + search.replicas) if seeds is None else seeds
+    )
     rows = [
         (d, impulses[c] / t, t, p, r, seed)
         for c in cells
@@ -318,7 +326,7 @@ def search_limits(
     tested = np.full((search.rounds, len(cells)), np.nan)
     recovered = np.zeros((search.rounds, len(cells)), int)
     runs = np.zeros((search.rounds, len(cells)), int)
-    n, m = search.replicas, search.min_recovered
+    n, m, s0 = search.replicas, search.min_recovered, search.first_seed
     walks = run_dir / "walks"
 
     def stage(impulses, which, seeds, name):
@@ -332,13 +340,14 @@ def search_limits(
         impulses = brackets.middle()
         if progress:
             print(f"limit search: round {r + 1} of {search.rounds}", flush=True)
-        first = range(1, n) if n > 1 else range(1, 2)
+        first = range(s0, s0 + n - 1) if n > 1 else range(s0, s0 + 1)
         everyone = np.arange(len(cells))
         recovered[r] = stage(impulses, everyone, first, f"round_{r:02d}")
         runs[r] = len(first)
         open_ = everyone[recovered[r] == m - 1] if n > 1 else everyone[:0]
         if len(open_):
-            recovered[r, open_] += stage(impulses, open_, range(n, n + 1), f"round_{r:02d}_last")
+            last = range(s0 + n - 1, s0 + n)
+            recovered[r, open_] += stage(impulses, open_, last, f"round_{r:02d}_last")
             runs[r, open_] += 1
         tested[r] = impulses
         brackets = brackets.update(impulses, recovered[r] >= m)
@@ -351,7 +360,9 @@ def _check_run_dir(search: LimitSearch, run_dir: Path) -> None:
     mine = to_jsonable(dataclasses.asdict(search))
     mine = json.loads(json.dumps(mine))
     if path.exists():
-        theirs = json.loads(path.read_text())
+        # Fields added since a search was written hold their defaults there.
+        defaults = json.loads(json.dumps(to_jsonable(dataclasses.asdict(LimitSearch()))))
+        theirs = {**defaults, **json.loads(path.read_text())}
         if theirs != mine:
             changed = sorted(k for k in mine if theirs.get(k) != mine[k])
             raise ValueError(
