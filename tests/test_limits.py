@@ -36,6 +36,7 @@ SMALL = dict(
         ("rounds", 0, ">= 1"),
         ("min_recovered", 6, r"\[1, replicas = 5\]"),
         ("qvel_noise", -0.1, ">= 0"),
+        ("first_seed", -1, ">= 0"),
     ],
 )
 def test_a_bad_search_names_the_field_and_the_valid_range(field, value, message):
@@ -51,6 +52,10 @@ def test_a_round_tests_each_cell_with_its_replicas():
     impulse = table["magnitude"] * table["duration"]
     np.testing.assert_allclose(impulse, np.repeat(impulses, 5))
     assert table["seed"].tolist()[:6] == [1, 2, 3, 4, 5, 1]  # one noise draw per replica
+    # A repeat on independent draws: the same pushes, other seeds.
+    again = round_table(LimitSearch(**SMALL, first_seed=6), impulses)
+    assert again["seed"].tolist()[:6] == [6, 7, 8, 9, 10, 6]
+    np.testing.assert_array_equal(again["magnitude"], table["magnitude"])
 
 
 def _robot(search, true_limits, flaky=None, calls=None):
@@ -119,6 +124,13 @@ def test_a_run_directory_holds_one_search(tmp_path):
     (tmp_path / "other" / "round_00").mkdir(parents=True)
     with pytest.raises(ValueError, match="unknown search"):
         search_limits(search, tmp_path / "other", robot)
+    # A search written before a field existed holds that field's default.
+    written = json.loads((tmp_path / "search.json").read_text())
+    del written["first_seed"]
+    (tmp_path / "search.json").write_text(json.dumps(written))
+    search_limits(search, tmp_path, robot, progress=False)
+    with pytest.raises(ValueError, match="another limit search.*first_seed"):
+        search_limits(LimitSearch(**SMALL, first_seed=6), tmp_path, robot)
 
 
 CI_SEARCH = [
