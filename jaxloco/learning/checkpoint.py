@@ -50,8 +50,11 @@ the full robot, but over the push-limit search it recovers less than the default
 FORMAT_VERSION = 1
 PPO_PARAMS_FILE = "ppo_params.msgpack"
 """The file that marks a checkpoint of :mod:`jaxloco.learning.ppo` (Brax's PPO)."""
+FALLBACK_FILE = "fallback.json"
+"""The file that marks a checkpoint of :mod:`jaxloco.learning.fallback`."""
 
 if TYPE_CHECKING:
+    from jaxloco.learning.fallback import FallbackPlanner
     from jaxloco.learning.ppo import PPOPlanner
 
 
@@ -157,11 +160,14 @@ class LearnedPlanner:
         return over_states(one, state)
 
 
-def load_planner(path=None, shipped: str = "default") -> LearnedPlanner | PPOPlanner:
-    """Load a trained planner from ``path`` (an RL-PSP checkpoint, or a PPO one from
-    ``jaxloco train-planner method=ppo``); with no path, the policy shipped with jaxloco
-    named ``shipped`` (a key of :data:`SHIPPED_POLICIES`: ``"default"`` or ``"refined"``).
-    Both kinds have the same interface: ``policy``, ``mean_action``, ``value``, ``psp``."""
+def load_planner(
+    path=None, shipped: str = "default"
+) -> LearnedPlanner | PPOPlanner | FallbackPlanner:
+    """Load a trained planner from ``path`` (an RL-PSP checkpoint, a PPO one from
+    ``jaxloco train-planner method=ppo``, or a :mod:`~jaxloco.learning.fallback` one naming
+    two of them); with no path, the policy shipped with jaxloco named ``shipped`` (a key of
+    :data:`SHIPPED_POLICIES`). All kinds have the same interface: ``policy``,
+    ``mean_action``, ``value``, ``psp``."""
     if path is None:
         if shipped not in SHIPPED_POLICIES:
             raise ValueError(
@@ -169,6 +175,10 @@ def load_planner(path=None, shipped: str = "default") -> LearnedPlanner | PPOPla
             )
         path = assets_dir() / SHIPPED_POLICIES[shipped]
     path = Path(path)
+    if (path / FALLBACK_FILE).exists():
+        from jaxloco.learning.fallback import load_fallback_planner
+
+        return load_fallback_planner(path)
     if (path / PPO_PARAMS_FILE).exists():
         # Imported here: Brax loads only for PPO checkpoints, not for every walking controller.
         from jaxloco.learning.ppo import load_ppo_planner
@@ -189,6 +199,10 @@ def checkpoint_digest(path=None, shipped: str = "default") -> str:
     import hashlib
 
     path = Path(path) if path is not None else assets_dir() / SHIPPED_POLICIES[shipped]
+    if (path / FALLBACK_FILE).exists():
+        from jaxloco.learning.fallback import fallback_digest
+
+        return fallback_digest(path)
     h = hashlib.sha256()
     for name in ("config.json", "weights.npz", PPO_PARAMS_FILE):
         if (path / name).exists():

@@ -1,0 +1,139 @@
+"""A step policy with a fallback: one policy where a look-ahead shows it walks on, another
+where it does not.
+
+:class:`FallbackPlanner` takes the *primary* policy's action at an apex state when the
+primary, rolled ``steps`` steps through the planner from that state, stays safe (Eq. 4 and
+the stride bounds at every step); elsewhere it takes the *fallback* policy's action. The
+look-ahead is the same analytic PSP the policies were trained on, so it costs ``steps``
+planner steps per call, and it runs in the planner's current :class:`PSPParams` (on the
+robot, the walking height that ``make_walking_controller`` sets).
+
+Why: a policy that walks the full robot well (the walking controller's gains and gait were
+tuned with it) can keep every action it takes where it walks on, while a policy with a
+larger survival basin takes over the states it fails from. The shipped default is Algorithm
+1's policy with the refined one as its fallback (``docs/learning.md``). It is not in the
+paper.
+
+A checkpoint is a folder holding ``fallback.json``: the look-ahead's ``steps`` and the
+paths of the two checkpoints (relative to the folder, or absolute), which
+:func:`~jaxloco.learning.load_planner` loads.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import jax.numpy as jnp
+from flax import struct
+
+from jaxloco.learning.checkpoint import FALLBACK_FILE, checkpoint_digest, load_planner
+from jaxloco.learning.evaluation import over_states
+from jaxloco.planner import PSPParams, plan_steps
+
+FORMAT_VERSION = 1
+
+
+@struct.dataclass
+class FallbackPlanner:
+    """The primary policy's action where its ``steps``-step look-ahead is safe, else the
+    fallback's. :class:`~jaxloco.learning.LearnedPlanner`'s interface (``policy``,
+    ``mean_action``, ``value``, ``psp``); a pytree, so it can be passed into ``jit``."""
+
+    primary: object
+    """A planner (``LearnedPlanner``, ``PPOPlanner``...)."""
+    fallback: object
+    psp: PSPParams = struct.field(pytree_node=False)
+    """The planner parameters of the look-ahead (each policy keeps its own action box)."""
+    steps: int = struct.field(pytree_node=False, default=10)
+    """Steps the primary must stay safe for its action to be taken (>= 1)."""
+
+    def primary_holds(self, state):
+        """Whether the primary's look-ahead from apex states ``(..., 3)`` is safe."""
+
+        def one(s):
+            walk = plan_steps(s, self.primary.policy, self.psp, num_steps=self.steps)
+            return walk.num_safe_steps == self.steps
+
+        return over_states(one, state)
+
+    def policy(self, state):
+        """The policy for one apex state ``(3,) -> (3,)`` (for plan_steps)."""
+        holds = self.primary_holds(state)
+        return jnp.where(holds, self.primary.policy(state), self.fallback.policy(state))
+
+    def mean_action(self, state):
+        """Actions for apex states ``(..., 3)`` (jittable, batched over leading axes)."""
+        return over_states(self.policy, state)
+
+    def value(self, state):
+        """The value of the policy whose action is taken, for apex states ``(..., 3)``."""
+        holds = self.primary_holds(state)
+        return jnp.where(holds, self.primary.value(state), self.fallback.value(state))
+
+
+def make_fallback_planner(primary, fallback, steps: int = 10) -> FallbackPlanner:
+    """A :class:`FallbackPlanner` whose look-ahead uses the primary's planner parameters."""
+    if int(steps) != steps or steps < 1:
+        raise ValueError(f"FallbackPlanner.steps must be an int >= 1; got {steps!r}")
+    if primary.psp != fallback.psp:
+        raise ValueError(
+            "FallbackPlanner: the primary and the fallback were trained with different "
+            f"planner parameters ({primary.psp} and {fallback.psp})"
+        )
+    return FallbackPlanner(primary, fallback, primary.psp, int(steps))
+
+
+def save_fallback_checkpoint(path, primary, fallback, steps: int = 10) -> Path:
+    """Write a fallback checkpoint at ``path`` naming the checkpoint folders ``primary`` and
+    ``fallback`` (stored relative to ``path`` when they lie beside or inside it, so the
+    three folders move together; else absolute); returns ``path``."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    make_fallback_planner(load_planner(primary), load_planner(fallback), steps)  # validates
+
+    def relative(p):
+        p = Path(p).resolve()
+        if p.is_relative_to(path.resolve().parent):
+            return os.path.relpath(p, path.resolve())
+        return str(p)
+
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "primary": relative(primary),
+        "fallback": relative(fallback),
+        "steps": int(steps),
+    }
+    (path / FALLBACK_FILE).write_text(json.dumps(meta, indent=2) + "\n")
+    return path
+
+
+def _read(path: Path) -> tuple[Path, Path, int]:
+    meta = json.loads((path / FALLBACK_FILE).read_text())
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ValueError(
+            f"{path / FALLBACK_FILE}: format {meta.get('format_version')!r}, "
+            f"expected {FORMAT_VERSION}"
+        )
+    return path / meta["primary"], path / meta["fallback"], meta["steps"]
+
+
+def load_fallback_planner(path) -> FallbackPlanner:
+    """The :class:`FallbackPlanner` of a fallback checkpoint folder."""
+    primary, fallback, steps = _read(Path(path))
+    for role, p in (("primary", primary), ("fallback", fallback)):
+        if not p.is_dir():
+            raise FileNotFoundError(f"{Path(path) / FALLBACK_FILE}: its {role} {p} is missing")
+    return make_fallback_planner(load_planner(primary), load_planner(fallback), steps)
+
+
+def fallback_digest(path) -> str:
+    """A short SHA-256 of a fallback checkpoint: its look-ahead and both policies' digests."""
+    import hashlib
+
+    primary, fallback, steps = _read(Path(path))
+    h = hashlib.sha256(f"steps={steps}".encode())
+    for p in (primary, fallback):
+        h.update(checkpoint_digest(p).encode())
+    return h.hexdigest()[:16]
