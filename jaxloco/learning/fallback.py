@@ -46,22 +46,31 @@ class FallbackPlanner:
     fallback: object
     psp: PSPParams = struct.field(pytree_node=False)
     """The planner parameters of the look-ahead (each policy keeps its own action box)."""
-    steps: int = struct.field(pytree_node=False, default=10)
-    """Steps the primary must stay safe for its action to be taken (>= 1)."""
+    steps: int = struct.field(pytree_node=False, default=2)
+    """Steps of the look-ahead (>= 1)."""
+    strict: bool = struct.field(pytree_node=False, default=True)
+    """Take the fallback's action only where its own look-ahead is safe too; where both
+    fail, the primary's action stands."""
 
-    def primary_holds(self, state):
-        """Whether the primary's look-ahead from apex states ``(..., 3)`` is safe."""
-
+    def _holds(self, planner, state):
         def one(s):
-            walk = plan_steps(s, self.primary.policy, self.psp, num_steps=self.steps)
+            walk = plan_steps(s, planner.policy, self.psp, num_steps=self.steps)
             return walk.num_safe_steps == self.steps
 
         return over_states(one, state)
 
+    def uses_fallback(self, state):
+        """Whether the fallback acts at apex states ``(..., 3)``: the primary's look-ahead
+        fails (and, when ``strict``, the fallback's holds)."""
+        switch = ~self._holds(self.primary, state)
+        if self.strict:
+            switch = switch & self._holds(self.fallback, state)
+        return switch
+
     def policy(self, state):
         """The policy for one apex state ``(3,) -> (3,)`` (for plan_steps)."""
-        holds = self.primary_holds(state)
-        return jnp.where(holds, self.primary.policy(state), self.fallback.policy(state))
+        switch = self.uses_fallback(state)
+        return jnp.where(switch, self.fallback.policy(state), self.primary.policy(state))
 
     def mean_action(self, state):
         """Actions for apex states ``(..., 3)`` (jittable, batched over leading axes)."""
@@ -69,11 +78,13 @@ class FallbackPlanner:
 
     def value(self, state):
         """The value of the policy whose action is taken, for apex states ``(..., 3)``."""
-        holds = self.primary_holds(state)
-        return jnp.where(holds, self.primary.value(state), self.fallback.value(state))
+        switch = self.uses_fallback(state)
+        return jnp.where(switch, self.fallback.value(state), self.primary.value(state))
 
 
-def make_fallback_planner(primary, fallback, steps: int = 10) -> FallbackPlanner:
+def make_fallback_planner(
+    primary, fallback, steps: int = 2, strict: bool = True
+) -> FallbackPlanner:
     """A :class:`FallbackPlanner` whose look-ahead uses the primary's planner parameters."""
     if int(steps) != steps or steps < 1:
         raise ValueError(f"FallbackPlanner.steps must be an int >= 1; got {steps!r}")
@@ -82,16 +93,16 @@ def make_fallback_planner(primary, fallback, steps: int = 10) -> FallbackPlanner
             "FallbackPlanner: the primary and the fallback were trained with different "
             f"planner parameters ({primary.psp} and {fallback.psp})"
         )
-    return FallbackPlanner(primary, fallback, primary.psp, int(steps))
+    return FallbackPlanner(primary, fallback, primary.psp, int(steps), bool(strict))
 
 
-def save_fallback_checkpoint(path, primary, fallback, steps: int = 10) -> Path:
+def save_fallback_checkpoint(path, primary, fallback, steps: int = 2, strict: bool = True) -> Path:
     """Write a fallback checkpoint at ``path`` naming the checkpoint folders ``primary`` and
     ``fallback`` (stored relative to ``path`` when they lie beside or inside it, so the
     three folders move together; else absolute); returns ``path``."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
-    make_fallback_planner(load_planner(primary), load_planner(fallback), steps)  # validates
+    make_fallback_planner(load_planner(primary), load_planner(fallback), steps, strict)
 
     def relative(p):
         p = Path(p).resolve()
@@ -104,36 +115,37 @@ def save_fallback_checkpoint(path, primary, fallback, steps: int = 10) -> Path:
         "primary": relative(primary),
         "fallback": relative(fallback),
         "steps": int(steps),
+        "strict": bool(strict),
     }
     (path / FALLBACK_FILE).write_text(json.dumps(meta, indent=2) + "\n")
     return path
 
 
-def _read(path: Path) -> tuple[Path, Path, int]:
+def _read(path: Path) -> tuple[Path, Path, int, bool]:
     meta = json.loads((path / FALLBACK_FILE).read_text())
     if meta.get("format_version") != FORMAT_VERSION:
         raise ValueError(
             f"{path / FALLBACK_FILE}: format {meta.get('format_version')!r}, "
             f"expected {FORMAT_VERSION}"
         )
-    return path / meta["primary"], path / meta["fallback"], meta["steps"]
+    return path / meta["primary"], path / meta["fallback"], meta["steps"], meta["strict"]
 
 
 def load_fallback_planner(path) -> FallbackPlanner:
     """The :class:`FallbackPlanner` of a fallback checkpoint folder."""
-    primary, fallback, steps = _read(Path(path))
+    primary, fallback, steps, strict = _read(Path(path))
     for role, p in (("primary", primary), ("fallback", fallback)):
         if not p.is_dir():
             raise FileNotFoundError(f"{Path(path) / FALLBACK_FILE}: its {role} {p} is missing")
-    return make_fallback_planner(load_planner(primary), load_planner(fallback), steps)
+    return make_fallback_planner(load_planner(primary), load_planner(fallback), steps, strict)
 
 
 def fallback_digest(path) -> str:
     """A short SHA-256 of a fallback checkpoint: its look-ahead and both policies' digests."""
     import hashlib
 
-    primary, fallback, steps = _read(Path(path))
-    h = hashlib.sha256(f"steps={steps}".encode())
+    primary, fallback, steps, strict = _read(Path(path))
+    h = hashlib.sha256(f"steps={steps} strict={strict}".encode())
     for p in (primary, fallback):
         h.update(checkpoint_digest(p).encode())
     return h.hexdigest()[:16]
