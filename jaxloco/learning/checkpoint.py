@@ -40,7 +40,11 @@ from jaxloco.planner import PSPParams
 from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
 
 DEFAULT_POLICY = "policies/rl_psp"
-SHIPPED_POLICIES = {"default": DEFAULT_POLICY, "refined": "policies/rl_psp_refined"}
+SHIPPED_POLICIES = {
+    "default": DEFAULT_POLICY,
+    "algorithm1": "policies/rl_psp",
+    "refined": "policies/rl_psp_refined",
+}
 """Policies in ``assets/``. ``default``: Algorithm 1 alone, as the paper (``jaxloco
 train-planner refine.iterations=0 actor_critic.max_iterations=600``); the walking
 controller uses it. ``refined``: the same weights refined through the planner (600 + 300
