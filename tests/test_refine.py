@@ -213,27 +213,45 @@ def test_cpu_compiler_options_change_speed_not_results():
 
 
 def test_the_anchor_keeps_the_starting_actions_where_the_start_walks():
-    planner = load_planner()
+    planner = load_planner(shipped="algorithm1")
     grid, key = planner.grid, jax.random.key(4)
-    states = uniform_states(jax.random.key(9), 2048, StartStates())
     start = mean_policy(planner.params, grid, P)
+    width = np.subtract(P.action_high, P.action_low)
+
+    def run(anchor_weight, steps):
+        cfg = RefineConfig(batch=256, horizon=2, anchor_weight=anchor_weight)
+        (w, s0), step = make_refine_step(planner.params, grid, P, cfg)
+        s = s0
+        for i in range(steps):
+            w, s, _ = step(w, s, jax.random.fold_in(key, i))
+        # The objective at any weights: a step's value is taken before it moves them.
+        objective = lambda weights, k: float(step(weights, s0, k)[2])  # noqa: E731
+        return refined_params(planner.params, w), objective
+
+    free, free_objective = run(0.0, 40)
+    anchored, anchored_objective = run(100.0, 40)
+    # The penalty, computed independently at the free run's weights on a step's draw.
+    k = jax.random.key(21)
+    states = uniform_states(k, 256, StartStates())
     held = np.asarray(steps_survived(start, states, P, 10) == 10)
     assert 0.2 < held.mean() < 0.9  # both kinds of state are in the draw
+    change = (jax.vmap(mean_policy(free, grid, P))(states) - jax.vmap(start)(states)) / width
+    penalty = np.mean(np.where(held, np.sum(np.asarray(change) ** 2, axis=-1), 0.0))
+    weights = (free.table[..., pol.MEAN], free.bias[pol.MEAN])
+    assert penalty > 1e-4
+    np.testing.assert_allclose(
+        free_objective(weights, k) - anchored_objective(weights, k), 100.0 * penalty, rtol=1e-4
+    )
 
-    def moved(anchor_weight):
-        cfg = RefineConfig(batch=256, horizon=2, learning_rate=3e-3, anchor_weight=anchor_weight)
-        (w, s), step = make_refine_step(planner.params, grid, P, cfg)
-        for i in range(15):
-            w, s, _ = step(w, s, jax.random.fold_in(key, i))
-        change = jax.vmap(mean_policy(refined_params(planner.params, w), grid, P))(states)
-        width = np.subtract(P.action_high, P.action_low)
-        return np.abs(np.asarray(change) - np.asarray(jax.vmap(start)(states))) / width
+    # Where the start walks, the anchored refinement moves the actions much less.
+    draw = uniform_states(jax.random.key(9), 2048, StartStates())
+    walks = np.asarray(steps_survived(start, draw, P, 10) == 10)
 
-    free, anchored = moved(0.0), moved(100.0)
-    # Measured (mean over the held states): 0.022 free, 0.0018 anchored.
-    assert anchored[held].mean() < 0.25 * free[held].mean()
-    # Where the start fails, the anchor does not hold the actions back as much.
-    assert anchored[~held].mean() > 2.0 * anchored[held].mean()
+    def moved(params):
+        after = jax.vmap(mean_policy(params, grid, P))(draw)
+        return np.abs(np.asarray(after) - np.asarray(jax.vmap(start)(draw))) / width
+
+    assert moved(anchored)[walks].mean() < 0.5 * moved(free)[walks].mean()
 
 
 @pytest.mark.parametrize(
