@@ -54,7 +54,7 @@ class FallbackPlanner:
 
     def _holds(self, planner, state):
         def one(s):
-            walk = plan_steps(s, planner.policy, self.psp, num_steps=self.steps)
+            walk = plan_steps(s, planner.policy, self.psp, num_steps=self.steps, unroll=True)
             return walk.num_safe_steps == self.steps
 
         return over_states(one, state)
