@@ -14,7 +14,9 @@ independent 65,536-state draw. Cases:
   Algorithm 1 configuration (plain summed updates, alpha = beta = 3e-5) with that budget;
 - the refinement alone (no Algorithm 1);
 - Brax's PPO on :class:`~jaxloco.learning.brax_env.StepEnv` (:mod:`jaxloco.learning.ppo`);
-- the one-step look-ahead search over the action grid, as a reference (no training).
+- the one-step look-ahead search over the action grid, as a reference (no training);
+- the policies shipped in ``assets/policies`` (no training): the walking controller's
+  default, Algorithm 1's and the refined one.
 
 The kept weights are chosen on the training evaluator's draw (2048 states), so each policy
 is also scored on two independent draws: 4096 states (the seed ``jaxloco policy-eval``
@@ -52,6 +54,7 @@ from jaxloco.learning import (
     ActorCriticConfig,
     RefineConfig,
     TrainConfig,
+    load_planner,
     mean_policy,
     rbf,
     save_checkpoint,
@@ -60,6 +63,7 @@ from jaxloco.learning import (
 )
 from jaxloco.learning import policy as pol
 from jaxloco.learning.actor_critic import init_train_state
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
 from jaxloco.learning.ppo import PPOConfig, save_ppo_checkpoint, train_ppo
 from jaxloco.learning.training import params_fingerprint
 from jaxloco.planner import PSPParams, make_lookahead_policy, turn_schedule
@@ -157,11 +161,28 @@ def run_lookahead():
     return row
 
 
+SHIPPED = (
+    ("default", "the walking controller's: Algorithm 1, with the refined policy as fallback"),
+    ("algorithm1", "Algorithm 1 alone (FAST, 600 it.)"),
+    ("refined", "Algorithm 1 (600 it.), then 300 refinement steps"),
+)
+
+
+def run_shipped(key, description):
+    """A policy shipped in assets/ (no training): its basins, and the time they took."""
+    t0 = time.perf_counter()
+    row = dict(
+        case=f"shipped '{key}': {description}",
+        **independent_basins(load_planner(shipped=key).policy),
+    )
+    row["eval_s"] = time.perf_counter() - t0
+    return row
+
+
 def robot_trials(checkpoint, run_dir) -> dict:
     """How a policy walks the full robot: Fig. 11's steering schedule (completed or not)
     and the default 64-push grid sweep (recovered pushes), both on MuJoCo C."""
     from jaxloco.dynamics.model import load_valkyrie
-    from jaxloco.learning import load_planner
     from jaxloco.locomotion import make_walking_controller
     from jaxloco.sim.scenarios import simulate_walk
     from jaxloco.sweep import SweepSpec, run_sweep
@@ -259,12 +280,15 @@ def main():
         rows.append(ppo_row)
         checkpoints["ppo"] = save_ppo_checkpoint(tmp / "ppo", ppo_run.planner)
         rows.append(run_lookahead())
+        on_robot = [(default_row, "default"), (a1_row, "algorithm1"), (ppo_row, "ppo")]
+        for key, description in SHIPPED:
+            rows.append(run_shipped(key, description))
+            checkpoints[f"shipped_{key}"] = assets_dir() / SHIPPED_POLICIES[key]
+            on_robot.append((rows[-1], f"shipped_{key}"))
         again, _ = run_training("default again (same seed)", default)
         reproducible = again["fingerprint"] == default_row["fingerprint"]
         if not args.quick:
-            for row, key in zip(
-                rows[:2] + [ppo_row], ("default", "algorithm1", "ppo"), strict=True
-            ):
+            for row, key in on_robot:
                 row.update(robot_trials(checkpoints[key], tmp / f"sweep_{key}"))
         features, feature_diff = bench_features(2048 if args.quick else 16384, 5)
     peak_rss_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024

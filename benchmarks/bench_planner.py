@@ -121,7 +121,7 @@ def bench_latency(repeats):
     s0 = jnp.asarray(P.nominal_state, jnp.float32)
     actions = jnp.tile(jnp.asarray([0.3, 0.2, 0.0], jnp.float32), (HORIZON, 1))
     lookahead = make_lookahead_policy(P)
-    learned = load_planner()  # the RL-PSP policy shipped in assets/
+    learned = load_planner(shipped="algorithm1")  # the RL-PSP policy shipped in assets/
 
     def compact(plan):
         return plan.footsteps, plan.t_switch, plan.t_apex, plan.alive

@@ -1,6 +1,6 @@
 """Evaluate a trained RL-PSP planner: survival basin against baselines, Fig. 6, value map.
 
-    jaxloco policy-eval                          # the default planner shipped in assets/
+    jaxloco policy-eval                          # the Algorithm 1 policy shipped in assets/
     jaxloco policy-eval checkpoint=outputs/.../checkpoint num_states=8192
 
 Writes to hydra's run directory: ``basins.json`` and ``basins.md`` (survival basin of the
@@ -22,7 +22,7 @@ import numpy as np
 
 from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.learning import LearnedPlanner, init_train_state, load_planner, steps_survived
-from jaxloco.learning.checkpoint import DEFAULT_POLICY, assets_dir, load_checkpoint_config
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir, load_checkpoint_config
 from jaxloco.learning.starts import uniform_states
 from jaxloco.planner import make_lookahead_policy, plan_steps, sample_com_trajectory
 from jaxloco.runtime import write_json
@@ -36,7 +36,8 @@ log = logging.getLogger(__name__)
 @dataclass
 class PolicyEvalConfig(RunConfig):
     checkpoint: str = ""
-    """Checkpoint folder; empty: the default planner shipped in assets/."""
+    """An RL-PSP checkpoint folder; empty: the Algorithm 1 policy shipped in assets/ (the
+    walking controller's default is it with a fallback, which has no value map to draw)."""
     num_states: int = 4096
     num_steps: int = 50
     seed: int = 2024
@@ -61,8 +62,13 @@ register("policy_eval", PolicyEvalConfig)
 
 
 def run(cfg: PolicyEvalConfig, out_dir: Path) -> dict:
-    path = Path(cfg.checkpoint) if cfg.checkpoint else assets_dir() / DEFAULT_POLICY
+    path = Path(cfg.checkpoint) if cfg.checkpoint else assets_dir() / SHIPPED_POLICIES["algorithm1"]
     trained = load_planner(path)
+    if not isinstance(trained, LearnedPlanner):
+        raise ValueError(
+            f"checkpoint: {path} holds a {type(trained).__name__}; policy-eval reads RL-PSP "
+            "checkpoints (its value maps are of the RBF network)"
+        )
     config, info = load_checkpoint_config(path)
     untrained = LearnedPlanner(
         init_train_state(config.actor_critic, config.grid).params, config.grid, config.planner

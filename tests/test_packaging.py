@@ -37,6 +37,7 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
         "jaxloco/assets/planar3dof.xml",
         "jaxloco/assets/policies/rl_psp/weights.npz",
         "jaxloco/assets/policies/rl_psp_refined/config.json",
+        "jaxloco/assets/policies/rl_psp_fallback/fallback.json",
         "jaxloco/assets/gains/body_shaking_h1_bandwidth.json",
     ):
         assert asset in names
@@ -60,8 +61,7 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
         "from jaxloco.runtime import assets_dir\n"
         "from jaxloco.dynamics.model import load_valkyrie\n"
         "from jaxloco.learning import load_planner\n"
-        "load_planner()\n"
-        "print('RESULT', assets_dir(), load_valkyrie().nv)\n"
+        "print('RESULT', assets_dir(), load_valkyrie().nv, type(load_planner()).__name__)\n"
     )
     env = {k: v for k, v in os.environ.items() if k != "JAXLOCO_ASSETS_DIR"}
     env["PYTHONPATH"] = str(target)
@@ -75,6 +75,7 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
     )
     assert out.returncode == 0, out.stderr[-2000:]
     (line,) = [x for x in out.stdout.splitlines() if x.startswith("RESULT ")]
-    _, assets, nv = line.split()
+    _, assets, nv, planner = line.split()
     assert Path(assets).resolve() == (target / "jaxloco" / "assets").resolve()
     assert nv == "34"
+    assert planner == "FallbackPlanner"  # its two policies found beside it in the wheel

@@ -53,7 +53,7 @@ def test_soft_safety_is_near_one_when_safe_and_small_when_not():
 
 
 def test_refinement_gradient_matches_finite_differences():
-    planner = load_planner()
+    planner = load_planner(shipped="algorithm1")
     params = jax.tree.map(lambda x: x.astype(jnp.float64), planner.params)
     cfg = RefineConfig(batch=6, horizon=3)
     key = jax.random.key(7)
@@ -73,7 +73,7 @@ def test_refinement_gradient_matches_finite_differences():
 
 
 def test_refinement_raises_the_survival_basin_and_keeps_the_best():
-    planner = load_planner()
+    planner = load_planner(shipped="algorithm1")
     # Algorithm 1's starting weights: every mean at the nominal action (0.3, 0.2, 0).
     start = init_train_state(FAST, planner.grid).params
     key = jax.random.key(11)
@@ -112,7 +112,7 @@ def test_refinement_raises_the_survival_basin_and_keeps_the_best():
 
 
 def test_refine_step_is_reproducible_for_a_seed():
-    planner = load_planner()
+    planner = load_planner(shipped="algorithm1")
     cfg = RefineConfig(batch=32, horizon=2)
     (w, s), step = make_refine_step(planner.params, planner.grid, P, cfg)
     key = jax.random.key(3)
@@ -174,7 +174,7 @@ def test_training_refines_after_algorithm_1_and_checkpoints_record_it(tmp_path):
 
 
 def test_mean_channel_policy_matches_the_full_network_read_out():
-    planner = load_planner()
+    planner = load_planner(shipped="algorithm1")
     states = uniform_states(jax.random.key(3), 256, StartStates())
     low, high = jnp.asarray(P.action_low), jnp.asarray(P.action_high)
 
@@ -195,7 +195,7 @@ def test_mean_channel_policy_matches_the_full_network_read_out():
 def test_cpu_compiler_options_change_speed_not_results():
     # XLA:CPU optimisation level 1 (jaxloco.runtime.cpu_compiler_options) for the learning
     # programs: the same objective and gradient as XLA's defaults, up to round-off.
-    planner = load_planner()
+    planner = load_planner(shipped="algorithm1")
     cfg = RefineConfig(batch=64, horizon=3)
     weights = (planner.params.table[..., pol.MEAN], planner.params.bias[pol.MEAN])
     states = uniform_states(jax.random.key(5), cfg.batch, StartStates())

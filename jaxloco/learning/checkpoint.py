@@ -39,18 +39,19 @@ from jaxloco.learning.training import EvalConfig, TrainConfig
 from jaxloco.planner import PSPParams
 from jaxloco.runtime import assets_dir  # noqa: F401 (re-exported)
 
-DEFAULT_POLICY = "policies/rl_psp"
+DEFAULT_POLICY = "policies/rl_psp_fallback"
 SHIPPED_POLICIES = {
     "default": DEFAULT_POLICY,
     "algorithm1": "policies/rl_psp",
     "refined": "policies/rl_psp_refined",
 }
-"""Policies in ``assets/``. ``default``: Algorithm 1 alone, as the paper (``jaxloco
-train-planner refine.iterations=0 actor_critic.max_iterations=600``); the walking
-controller uses it. ``refined``: the same weights refined through the planner (600 + 300
-steps at horizon 4): a larger survival basin, and it walks Fig. 11's steering schedule on
-the full robot, but over the push-limit search it recovers less than the default
-(docs/learning.md)."""
+"""Policies in ``assets/``. ``algorithm1``: Algorithm 1 alone, as the paper (``jaxloco
+train-planner refine.iterations=0 actor_critic.max_iterations=600``). ``refined``: the same
+weights refined through the planner (600 + 300 steps at horizon 4): a larger survival
+basin, but alone it recovers fewer pushes on the full robot. ``default``, which the walking
+controller uses: ``algorithm1`` with ``refined`` as its fallback
+(:mod:`~jaxloco.learning.fallback`): the survival basin of ``refined``, and Algorithm 1's
+actions wherever its look-ahead is safe (docs/learning.md)."""
 FORMAT_VERSION = 1
 PPO_PARAMS_FILE = "ppo_params.msgpack"
 """The file that marks a checkpoint of :mod:`jaxloco.learning.ppo` (Brax's PPO)."""

@@ -3,9 +3,11 @@ where it does not.
 
 :class:`FallbackPlanner` takes the *primary* policy's action at an apex state when the
 primary, rolled ``steps`` steps through the planner from that state, stays safe (Eq. 4 and
-the stride bounds at every step); elsewhere it takes the *fallback* policy's action. The
+the stride bounds at every step); elsewhere it takes the *fallback* policy's action (with
+``strict``, only where the fallback's own look-ahead is safe). The
 look-ahead is the same analytic PSP the policies were trained on, so it costs ``steps``
-planner steps per call, and it runs in the planner's current :class:`PSPParams` (on the
+planner steps of each policy per call (unrolled: a scanned one made the batched walking
+tick several times slower), and it runs in the planner's current :class:`PSPParams` (on the
 robot, the walking height that ``make_walking_controller`` sets).
 
 Why: a policy that walks the full robot well (the walking controller's gains and gait were
@@ -46,7 +48,7 @@ class FallbackPlanner:
     fallback: object
     psp: PSPParams = struct.field(pytree_node=False)
     """The planner parameters of the look-ahead (each policy keeps its own action box)."""
-    steps: int = struct.field(pytree_node=False, default=2)
+    steps: int = struct.field(pytree_node=False, default=1)
     """Steps of the look-ahead (>= 1)."""
     strict: bool = struct.field(pytree_node=False, default=True)
     """Take the fallback's action only where its own look-ahead is safe too; where both
@@ -83,7 +85,7 @@ class FallbackPlanner:
 
 
 def make_fallback_planner(
-    primary, fallback, steps: int = 2, strict: bool = True
+    primary, fallback, steps: int = 1, strict: bool = True
 ) -> FallbackPlanner:
     """A :class:`FallbackPlanner` whose look-ahead uses the primary's planner parameters."""
     if int(steps) != steps or steps < 1:
@@ -96,7 +98,7 @@ def make_fallback_planner(
     return FallbackPlanner(primary, fallback, primary.psp, int(steps), bool(strict))
 
 
-def save_fallback_checkpoint(path, primary, fallback, steps: int = 2, strict: bool = True) -> Path:
+def save_fallback_checkpoint(path, primary, fallback, steps: int = 1, strict: bool = True) -> Path:
     """Write a fallback checkpoint at ``path`` naming the checkpoint folders ``primary`` and
     ``fallback`` (stored relative to ``path`` when they lie beside or inside it, so the
     three folders move together; else absolute); returns ``path``."""
