@@ -26,7 +26,7 @@ def policies():
 
 def test_the_fallback_acts_where_the_primarys_look_ahead_fails(policies):
     primary, fallback = policies
-    states = uniform_states(jax.random.key(3), 512, StartStates())
+    states = uniform_states(jax.random.key(3), 256, StartStates())
     # The look-aheads, computed independently: each policy's own walk of 3 steps.
     primary_holds = np.asarray(steps_survived(primary.policy, states, primary.psp, 3) == 3)
     fallback_holds = np.asarray(steps_survived(fallback.policy, states, primary.psp, 3) == 3)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_cli
 
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
 from jaxloco.sweep.limits import LimitSearch, round_table, search_limits
 
 SMALL = dict(
@@ -146,6 +147,9 @@ CI_SEARCH = [
     "search.steps_after=1",
     "workers=1",
     "chunk_size=2",
+    # The search's machinery, tested on Algorithm 1's policy alone: the default's
+    # look-ahead makes the compile longer, and the walking tests cover it.
+    f"planner={assets_dir() / SHIPPED_POLICIES['algorithm1']}",
 ]
 
 

@@ -8,9 +8,14 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
 from jaxloco.sweep import SweepSpec, SweepStore, expand, summarize
 from jaxloco.sweep.outcome import FIELDS
 from jaxloco.sweep.store import table_digest
+
+# The sweep machinery is tested on Algorithm 1's policy alone: the default's look-ahead
+# makes the compile longer, and the walking tests cover it.
+ALG1 = str(assets_dir() / SHIPPED_POLICIES["algorithm1"])
 
 
 def test_spec_rejects_bad_values_naming_the_field():
@@ -91,6 +96,7 @@ def test_store_resumes_and_refuses_another_sweep(tmp_path):
 
 def test_the_settings_of_a_job_decide_whether_a_run_directory_is_the_same_sweep(tmp_path):
     import shutil
+    from pathlib import Path
 
     from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
     from jaxloco.locomotion import GaitParams
@@ -111,10 +117,12 @@ def test_the_settings_of_a_job_decide_whether_a_run_directory_is_the_same_sweep(
         job.replace(planner=str(assets_dir() / SHIPPED_POLICIES["refined"])),
     ):
         assert changed.settings_digest() != job.settings_digest()
-    # The policy counts by its contents: the shipped default copied elsewhere is the same.
-    copy = tmp_path / "policy"
-    shutil.copytree(assets_dir() / SHIPPED_POLICIES["default"], copy)
-    assert job.replace(planner=str(copy)).settings_digest() == job.settings_digest()
+    # The policy counts by its contents: the shipped default (a fallback planner naming its
+    # two neighbours) copied elsewhere with them is the same.
+    copy = tmp_path / "policies"
+    shutil.copytree(assets_dir() / "policies", copy)
+    default = copy / Path(SHIPPED_POLICIES["default"]).name
+    assert job.replace(planner=str(default)).settings_digest() == job.settings_digest()
     with pytest.raises(FileNotFoundError, match="no planner checkpoint"):
         job.replace(planner=str(tmp_path / "none")).settings_digest()
     with pytest.raises(ValueError, match="SweepJob.backend"):
@@ -221,7 +229,7 @@ def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, 
         lambda *a, **k: walks.append(a[3:6]) or snapshot_walk(*a, **k),
     )
     spec = SweepSpec(**CI_SPEC)
-    b = run_sweep(spec, tmp_path / "b", backend="c", chunk_size=2, progress=False)
+    b = run_sweep(spec, tmp_path / "b", backend="c", chunk_size=2, progress=False, planner=ALG1)
     summary = write_report(tmp_path / "b")
     assert summary["variants"]["replan"]["recovered"] == 2
     assert (tmp_path / "b" / "success_polar.png").stat().st_size > 0
@@ -230,10 +238,12 @@ def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, 
     assert b.manifest["runs"][0]["env_steps_per_s"] is None
     assert "no compile-free rate" in (tmp_path / "b" / "summary.md").read_text()
 
-    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, max_chunks=1)
+    a = run_sweep(
+        spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, max_chunks=1, planner=ALG1
+    )
     assert a.complete.tolist() == [True, False]
     assert len(list((tmp_path / "a" / "walks").glob("*.npz"))) == 1
-    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False)
+    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, planner=ALG1)
     assert a.complete.all()
     assert len(a.manifest["runs"]) == 2 and a.manifest["runs"][1]["chunks"] == [1]
     assert len(walks) == 2  # one per run directory: the resume loaded its walk from disk
@@ -278,13 +288,15 @@ def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path
     from jaxloco.sweep import run_sweep
 
     spec = SweepSpec(**CI_SPEC)
-    one = run_sweep(spec, tmp_path / "one", backend="c", chunk_size=1, progress=False)
+    one = run_sweep(spec, tmp_path / "one", backend="c", chunk_size=1, progress=False, planner=ALG1)
     killed = []
     killer = threading.Thread(
         target=_kill_a_worker_once_chunks_start, args=(tmp_path / "two", killed), daemon=True
     )
     killer.start()
-    two = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2)
+    two = run_sweep(
+        spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2, planner=ALG1
+    )
     killer.join(timeout=5)
     assert killed, "no worker process was found to kill"
     assert two.complete.all()
@@ -293,12 +305,16 @@ def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path
     run = two.manifest["runs"][0]
     assert run["executor"] == "dask" and run["workers"] == 2 and run["chunks"] == [0, 1]
     assert run["overall_env_steps_per_s"] > 0
-    again = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2)
+    again = run_sweep(
+        spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, workers=2, planner=ALG1
+    )
     assert len(again.manifest["runs"]) == 1
     # A damaged chunk is run again (here in this process), to the same outcomes.
     path = SweepStore(tmp_path / "two").chunk_path(1)
     path.write_bytes(b"not a chunk")
-    fixed = run_sweep(spec, tmp_path / "two", backend="c", chunk_size=1, progress=False)
+    fixed = run_sweep(
+        spec, tmp_path / "two", backend="c", chunk_size=1, progress=False, planner=ALG1
+    )
     assert fixed.manifest["runs"][-1]["chunks"] == [1]
     for k in FIELDS:
         np.testing.assert_array_equal(fixed.outcomes[k], one.outcomes[k], err_msg=k)
