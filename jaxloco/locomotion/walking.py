@@ -2,7 +2,7 @@
 
 :func:`make_walking_controller` binds a model, a WBLC configuration (the walking hierarchy
 of Section V-B by default), :class:`~jaxloco.locomotion.gait.GaitParams` and a step policy
-(the shipped RL-PSP policy by default). The result's ``step(t, qpos, qvel, state)`` is pure
+(the shipped default, ``load_planner()``). The result's ``step(t, qpos, qvel, state)`` is pure
 and jittable, and ``jax.vmap`` batches it over robots: the same function drives MuJoCo's C
 engine (:mod:`jaxloco.sim.mujoco_c`) and MJX rollouts (:mod:`jaxloco.sim.mjx_loop`).
 """
@@ -174,10 +174,11 @@ def make_walking_controller(
     robot: RobotDescription = DEFAULT_ROBOT,
 ) -> WalkingController:
     """A walking controller for ``model``, a model of ``robot``: WBLC ``config`` (default:
-    the robot's walking hierarchy), gait numbers and the step ``planner`` (default: the
-    shipped RL-PSP policy). ``keyframe_qpos`` sets the joint postures the posture tasks
-    hold (default: the robot's keyframe). The planner walks at ``gait.com_height`` (its
-    ``psp.h`` is replaced unless that is None)."""
+    the robot's walking hierarchy), gait numbers and the step ``planner`` (default:
+    ``load_planner()``, Algorithm 1's RL-PSP policy with the refined one as its fallback;
+    any planner with ``policy`` and ``psp``). ``keyframe_qpos`` sets the joint postures the
+    posture tasks hold (default: the robot's keyframe). The planner walks at
+    ``gait.com_height`` (its ``psp.h`` is replaced unless that is None)."""
     check_model(robot, model)
     config = walking_config(robot) if config is None else config
     gait = GaitParams() if gait is None else gait
