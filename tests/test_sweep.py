@@ -215,19 +215,36 @@ def test_paired_comparison_is_mcnemars_exact_test():
         paired_comparison(np.ones(3, bool), np.ones(4, bool))
 
 
-def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, monkeypatch):
-    """A real sweep (C backend): two pushes in one chunk of 2, and in chunks of 1 (stopped
-    after one chunk, then resumed from the walk kept on disk) give the same outcomes."""
+@pytest.fixture(scope="module")
+def chunks_of_one(tmp_path_factory):
+    """The CI sweep in this process in chunks of 1, stopped after one chunk and resumed:
+    ``(stopped, resumed, walks)``, ``walks`` the walks it simulated. Shared by the tests
+    that compare other chunkings and executors with it (one sweep fewer to run)."""
     import jaxloco.sweep.chunks as sweep_chunks
-    from jaxloco.sweep import run_sweep, write_report
+    from jaxloco.sweep import run_sweep
 
+    run_dir = tmp_path_factory.mktemp("chunks_of_one")
     walks = []
     snapshot_walk = sweep_chunks.snapshot_walk
-    monkeypatch.setattr(
-        sweep_chunks,
-        "snapshot_walk",
-        lambda *a, **k: walks.append(a[3:6]) or snapshot_walk(*a, **k),
-    )
+    spec = SweepSpec(**CI_SPEC)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(
+            sweep_chunks,
+            "snapshot_walk",
+            lambda *a, **k: walks.append(a[3:6]) or snapshot_walk(*a, **k),
+        )
+        kw = dict(backend="c", chunk_size=1, progress=False, planner=ALG1)
+        stopped = run_sweep(spec, run_dir, max_chunks=1, **kw)
+        stopped_walks = len(list((run_dir / "walks").glob("*.npz")))
+        resumed = run_sweep(spec, run_dir, **kw)
+    return stopped, stopped_walks, resumed, walks
+
+
+def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, chunks_of_one):
+    """A real sweep (C backend): two pushes in one chunk of 2, and in chunks of 1 (stopped
+    after one chunk, then resumed from the walk kept on disk) give the same outcomes."""
+    from jaxloco.sweep import run_sweep, write_report
+
     spec = SweepSpec(**CI_SPEC)
     b = run_sweep(spec, tmp_path / "b", backend="c", chunk_size=2, progress=False, planner=ALG1)
     summary = write_report(tmp_path / "b")
@@ -238,15 +255,12 @@ def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, 
     assert b.manifest["runs"][0]["env_steps_per_s"] is None
     assert "no compile-free rate" in (tmp_path / "b" / "summary.md").read_text()
 
-    a = run_sweep(
-        spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, max_chunks=1, planner=ALG1
-    )
-    assert a.complete.tolist() == [True, False]
-    assert len(list((tmp_path / "a" / "walks").glob("*.npz"))) == 1
-    a = run_sweep(spec, tmp_path / "a", backend="c", chunk_size=1, progress=False, planner=ALG1)
+    stopped, stopped_walks, a, walks = chunks_of_one
+    assert stopped.complete.tolist() == [True, False]
+    assert stopped_walks == 1
     assert a.complete.all()
     assert len(a.manifest["runs"]) == 2 and a.manifest["runs"][1]["chunks"] == [1]
-    assert len(walks) == 2  # one per run directory: the resume loaded its walk from disk
+    assert len(walks) == 1  # the resume loaded its walk from disk
     assert a.outcomes["recovered"].dtype == bool
     # 200 N x 0.1 s is well inside what the walking controller recovers.
     assert a.outcomes["recovered"].all(), a.outcomes
@@ -278,7 +292,7 @@ def _kill_a_worker_once_chunks_start(run_dir, killed):
         killed.append(workers[0].pid)
 
 
-def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path):
+def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path, chunks_of_one):
     """Two Dask worker processes (one chunk each) give the outcomes of this process running
     the same chunks, bit for bit, even with one worker killed while chunks run (its task
     runs again); the run is recorded in the manifest; a damaged chunk file is run again,
@@ -288,7 +302,7 @@ def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path
     from jaxloco.sweep import run_sweep
 
     spec = SweepSpec(**CI_SPEC)
-    one = run_sweep(spec, tmp_path / "one", backend="c", chunk_size=1, progress=False, planner=ALG1)
+    one = chunks_of_one[2]  # the same chunks, run in this process
     killed = []
     killer = threading.Thread(
         target=_kill_a_worker_once_chunks_start, args=(tmp_path / "two", killed), daemon=True
