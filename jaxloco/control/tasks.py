@@ -8,7 +8,8 @@ tick and shared). Kinds:
 - ``cam``: centroidal angular momentum ``k`` (momentum units, rows of ``J_cm``), 3 rows;
   its "position" reference is the desired momentum (usually 0): ``kdot^d = kp (k^d - k) +
   acc``. Inside WBLC its command is replaced by what the contact forces achieve (Eq. 15).
-- ``orientation``: a site's frame, quaternion error :func:`se3.rotation_error`, 3 rows.
+- ``orientation``: a site's frame (its body's orientation times the site's own, fixed
+  rotation), quaternion error :func:`se3.rotation_error`, 3 rows.
 - ``position``: a site's origin, 3 rows.
 - ``joints``: a set of joints (partial or full posture), one row each.
 - ``contact``: a foot held still (6 rows, ``[angular; linear]``), command ``-Jdot qd``.
@@ -26,6 +27,7 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from brax.math import quat_mul
 from flax import struct
 from mujoco import mjx
 
@@ -155,6 +157,8 @@ class _Index:
     body: int = -1
     qpos: tuple[int, ...] = ()
     dof: tuple[int, ...] = ()
+    site_quat: tuple[float, ...] | None = None
+    """The site's rotation in its body (w, x, y, z); None where the site is body-aligned."""
 
 
 def task_index(model: mujoco.MjModel, spec: TaskSpec) -> _Index:
@@ -162,9 +166,13 @@ def task_index(model: mujoco.MjModel, spec: TaskSpec) -> _Index:
         site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, spec.frame)
         if site < 0:
             raise ValueError(f"TaskSpec {spec.name!r}: no site {spec.frame!r} in the model")
-        if spec.kind == "orientation" and not np.allclose(model.site_quat[site], [1, 0, 0, 0]):
-            raise ValueError(f"TaskSpec {spec.name!r}: site {spec.frame!r} must be body-aligned")
-        return _Index(site=site, body=int(model.site_bodyid[site]))
+        quat = np.asarray(model.site_quat[site], float)
+        aligned = np.allclose(quat, [1, 0, 0, 0])
+        return _Index(
+            site=site,
+            body=int(model.site_bodyid[site]),
+            site_quat=None if aligned else tuple(float(x) for x in quat / np.linalg.norm(quat)),
+        )
     if spec.joints:
         ids = []
         for name in spec.joints:
@@ -184,6 +192,14 @@ def task_index(model: mujoco.MjModel, spec: TaskSpec) -> _Index:
     return _Index()
 
 
+def frame_quat(d: mjx.Data, index: _Index) -> jax.Array:
+    """(4,) world orientation of a task's site: its body's, turned by the site's own rotation."""
+    q = d.xquat[index.body]
+    if index.site_quat is None:
+        return q
+    return quat_mul(q, jnp.asarray(index.site_quat, q.dtype))
+
+
 def current_position(mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSnapshot):
     """The task's current position (quaternion for orientations, momentum for CAM)."""
     d = snap.data
@@ -192,10 +208,10 @@ def current_position(mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSn
     if spec.kind == "cam":
         return snap.centroidal_matrix[:3] @ d.qvel
     if spec.kind == "orientation":
-        return d.xquat[index.body]
+        return frame_quat(d, index)
     if spec.kind in ("position", "contact"):
         pos = d.site_xpos[index.site]
-        return pos if spec.kind == "position" else jnp.concatenate([d.xquat[index.body], pos])
+        return pos if spec.kind == "position" else jnp.concatenate([frame_quat(d, index), pos])
     return d.qpos[jnp.asarray(index.qpos)]
 
 
@@ -221,7 +237,7 @@ def task_terms(
         jdqd6 = jac.frame_jdot_qdot(mx, d, point, index.body, snap.motion)
         if spec.kind == "orientation":
             j, jdqd = j6[:3], jdqd6[:3]
-            err = se3.rotation_error(ref.pos, d.xquat[index.body])
+            err = se3.rotation_error(ref.pos, frame_quat(d, index))
             desired = kp * err + kd * (ref.vel - j @ d.qvel) + ref.acc
         elif spec.kind == "position":
             j, jdqd = j6[3:], jdqd6[3:]

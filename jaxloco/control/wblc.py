@@ -53,6 +53,7 @@ from jaxloco.control.tasks import (
     task_terms,
 )
 from jaxloco.dynamics import jacobians as jac
+from jaxloco.dynamics.model import without_colliders
 
 
 @dataclasses.dataclass(frozen=True)
@@ -250,7 +251,7 @@ class WBLC:
 
 
 def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = None) -> WBLC:
-    mx = mjx.put_model(model) if mx is None else mx
+    mx = mjx.put_model(without_colliders(model)) if mx is None else mx
     indices = {t.name: task_index(model, t) for t in config.tasks}
     point_sites, foot_of_point = [], []
     for k, foot in enumerate(config.feet):

@@ -10,6 +10,7 @@ names (joints, feet, frames) are in :mod:`jaxloco.robots.valkyrie`.
 
 from __future__ import annotations
 
+import copy
 from pathlib import Path
 
 import mujoco
@@ -34,6 +35,16 @@ def load_model(name_or_path: str) -> mujoco.MjModel:
 
 def load_valkyrie() -> mujoco.MjModel:
     return load_model("valkyrie")
+
+
+def without_colliders(model: mujoco.MjModel) -> mujoco.MjModel:
+    """A copy of ``model`` whose geoms collide with nothing: the controller's dynamics (mass
+    matrix, bias forces, Jacobians) need no collision geometry, and ``mjx.put_model``
+    refuses colliders MJX cannot pair (e.g. the G1's cylinders against meshes)."""
+    model = copy.deepcopy(model)
+    model.geom_contype[:] = 0
+    model.geom_conaffinity[:] = 0
+    return model
 
 
 def keyframe_qpos(model: mujoco.MjModel, name: str) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Robot descriptions: what WBLC, the gait and the sweeps need to know about a humanoid
 (:class:`RobotDescription`), and the robots jaxloco ships (:data:`ROBOTS`)."""
 
+from jaxloco.robots.apollo import APOLLO
 from jaxloco.robots.description import (
     PD,
     Foot,
@@ -9,9 +10,10 @@ from jaxloco.robots.description import (
     check_model,
     effort_limits,
 )
+from jaxloco.robots.g1 import G1
 from jaxloco.robots.valkyrie import VALKYRIE
 
-ROBOTS = {VALKYRIE.name: VALKYRIE}
+ROBOTS = {robot.name: robot for robot in (VALKYRIE, G1, APOLLO)}
 """Shipped robots by name."""
 
 DEFAULT_ROBOT = VALKYRIE
@@ -26,7 +28,9 @@ def robot_by_name(name: str) -> RobotDescription:
 
 
 __all__ = [
+    "APOLLO",
     "DEFAULT_ROBOT",
+    "G1",
     "PD",
     "ROBOTS",
     "VALKYRIE",

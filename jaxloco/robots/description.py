@@ -5,7 +5,8 @@ model's names directly: its feet (contact frame and contact points), the bodies 
 orientation the hierarchy holds, its joint groups, the keyframe it stands in, and default
 task gains. :func:`check_model` tells, by name, what a model lacks before anything is
 compiled. A model is bound to a description by name (``RobotDescription.model``: a model
-shipped in ``assets/``, or an MJCF path).
+shipped in ``assets/``, an MJCF path, or a :class:`~jaxloco.robots.model_source.PackagedModel`:
+a model of the installed model package, edited by code).
 """
 
 from __future__ import annotations
@@ -16,17 +17,21 @@ import mujoco
 import numpy as np
 
 from jaxloco.dynamics.model import keyframe_qpos, load_model
+from jaxloco.robots.model_source import PackagedModel, build_model
 
 
 @dataclasses.dataclass(frozen=True)
 class Foot:
-    """One foot: the site of its contact frame (its centre of pressure at rest, body-aligned)
-    and the sites of its contact points, all on the foot's body."""
+    """One foot: the site of its contact frame and the sites of its contact points, all on
+    the foot's body."""
 
     name: str
     """Side, e.g. ``"left"``: task names are ``{name}_contact``, ``{name}_foot_pos``..."""
     frame: str
+    """The contact frame: its origin at the centre of pressure at rest, on the sole; its
+    axes level (z up) when the foot stands flat (the swing-foot tasks hold it level)."""
     points: tuple[str, ...]
+    """The contact points (on the sole): where the force QP's reaction forces act."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,15 +64,16 @@ class TaskGains:
 class RobotDescription:
     """A humanoid as the controller sees it (every name is one in the model).
 
-    ``feet`` is (left, right). ``base_frame`` and ``torso_frame`` are body-aligned sites of
-    the floating base (the pelvis) and of the upper body, whose orientations the walking
-    and shaking hierarchies hold; ``base_body`` is the body pushes act on and whose height
-    tells a fall. ``joints`` are every actuated joint (the full posture task); the groups
-    below are subsets of them."""
+    ``feet`` is (left, right). ``base_frame`` and ``torso_frame`` are sites of the floating
+    base (the pelvis) and of the upper body, level when the robot stands upright, whose
+    orientations the walking and shaking hierarchies hold; ``base_body`` is the body pushes
+    act on and whose height tells a fall. ``joints`` are every actuated joint (the full
+    posture task); the groups below are subsets of them."""
 
     name: str
-    model: str
-    """A model in ``assets/`` by name, or an MJCF path."""
+    model: str | PackagedModel
+    """A model in ``assets/`` by name, an MJCF path, or a model of the installed model
+    package with the edits the controller needs (:mod:`jaxloco.robots.model_source`)."""
     feet: tuple[Foot, Foot]
     base_frame: str
     base_body: str
@@ -102,7 +108,10 @@ class RobotDescription:
 
     def load(self) -> mujoco.MjModel:
         """The model, checked against this description (:func:`check_model`)."""
-        model = load_model(self.model)
+        if isinstance(self.model, PackagedModel):
+            model = build_model(self.model)
+        else:
+            model = load_model(self.model)
         check_model(self, model)
         return model
 
@@ -125,7 +134,8 @@ def effort_limits(model: mujoco.MjModel) -> np.ndarray:
 
 def check_model(robot: RobotDescription, model: mujoco.MjModel) -> None:
     """Raise ``ValueError`` naming everything ``model`` lacks that ``robot`` needs: sites,
-    bodies, joints, a keyframe, a floating base, and torque motors on every joint."""
+    bodies, joints, a keyframe, a floating base, and a torque motor of gear 1 on every joint
+    (the controller's torques are the actuators' controls)."""
     missing = []
 
     def has(kind, name):
@@ -149,8 +159,6 @@ def check_model(robot: RobotDescription, model: mujoco.MjModel) -> None:
         name = getattr(robot, field)
         if not has(site, name):
             missing.append(f"site {name!r} ({field})")
-        elif not np.allclose(model.site(name).quat, [1, 0, 0, 0]):
-            missing.append(f"a body-aligned site {name!r} ({field})")
     if not has(body, robot.base_body):
         missing.append(f"body {robot.base_body!r} (base_body)")
     if model.njnt == 0 or model.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE:
@@ -178,6 +186,8 @@ def check_model(robot: RobotDescription, model: mujoco.MjModel) -> None:
                 f"a torque motor on joint {name!r} (actuator {model.actuator(a).name!r} is a "
                 "servo: gain or bias depends on the state)"
             )
+        elif model.actuator_gear[a, 0] != 1:
+            missing.append(f"gear 1 on the motor of joint {name!r}")
     if missing:
         raise ValueError(
             f"model {robot.model!r} does not fit robot {robot.name!r}; it lacks: "
