@@ -61,6 +61,7 @@ from jaxloco.dynamics import se3
 from jaxloco.locomotion.swing import SwingSpline, make_swing, quintic, retarget_swing
 from jaxloco.planner import lipm
 from jaxloco.planner.psp import INFEASIBLE, PSPParams, Reason, plan_apex_components
+from jaxloco.planner.scaling import FroudeScale
 from jaxloco.planner.steering import local_to_world, world_to_local
 
 START, WALK = 0, 1
@@ -213,11 +214,58 @@ class GaitParams:
             ("arm_return_rate", 0 <= self.arm_return_rate < 100, "in [0, 100)"),
             (
                 "com_height",
-                self.com_height is None or 0.5 <= self.com_height <= 1.2,
-                "in [0.5, 1.2] m (or None)",
+                self.com_height is None or 0.1 <= self.com_height <= 3.0,
+                "in [0.1, 3] m (or None)",
             ),
         ]
         v.check_fields(self, [(n, ok and finite(n), rule) for n, ok, rule in rules])
+
+    def scaled(self, scale: FroudeScale) -> GaitParams:
+        """These numbers for a robot ``scale`` times the size they were chosen for (Froude
+        scaling: lengths by ``L``, times and velocities by ``sqrt(L)``, rates by
+        ``1 / sqrt(L)``); the identity for ``L = 1``. Switches, ``replan_gamma`` and the
+        first stance foot are dimensionless and stay."""
+        if scale.length == 1.0:
+            return self
+        factors = {
+            **dict.fromkeys(_GAIT_LENGTHS, scale.length),
+            **dict.fromkeys(_GAIT_TIMES, scale.time),
+            **dict.fromkeys(_GAIT_VELOCITIES, scale.velocity),
+            "arm_return_rate": 1.0 / scale.time,
+        }
+        changes = {}
+        for name, f in factors.items():
+            value = getattr(self, name)
+            if value is None:
+                continue
+            changes[name] = tuple(x * f for x in value) if isinstance(value, tuple) else value * f
+        return dataclasses.replace(self, **changes)
+
+
+_GAIT_LENGTHS = (
+    "start_lateral",
+    "swing_height",
+    "fallback_dcm_offset",
+    "max_lateral_dcm",
+    "max_com_lead",
+    "step_x_range",
+    "step_y_range",
+    "touchdown_height",
+    "late_landing_depth",
+    "replan_threshold",
+    "com_height",
+)
+_GAIT_TIMES = (
+    "start_duration",
+    "contact_blend",
+    "min_step_duration",
+    "max_step_duration",
+    "fallback_duration",
+    "max_touchdown_delay",
+    "replan_delay",
+    "replan_min_remaining",
+)
+_GAIT_VELOCITIES = ("start_speed", "max_apex_speed")
 
 
 @struct.dataclass

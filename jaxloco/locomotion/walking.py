@@ -21,9 +21,10 @@ from jaxloco.control.presets import foot_task, walking_config
 from jaxloco.control.tasks import snapshot as robot_snapshot
 from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
 from jaxloco.learning.checkpoint import LearnedPlanner, load_planner
+from jaxloco.learning.scaled import ScaledPlanner, planner_at_height
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.gait import GaitParams, GaitState
-from jaxloco.robots import DEFAULT_ROBOT, RobotDescription, check_model
+from jaxloco.robots import DEFAULT_ROBOT, RobotDescription, check_model, robot_scale
 
 ARM_TASK = "arms"
 """The joint-posture task of the arms (the walking hierarchy's last level)."""
@@ -165,6 +166,23 @@ def _cam_reference(ctrl: WalkingController, snap, qpos, body_yaw):
     return ref.replace(pos=pos, acc=k_per_yaw_rate * body_yaw[2][2])
 
 
+def robot_gait(
+    robot: RobotDescription, model: mujoco.MjModel, gait: GaitParams | None = None
+) -> GaitParams:
+    """``gait`` (default ``GaitParams()``: numbers for the reference robot) scaled to
+    ``robot``'s size (:func:`~jaxloco.robots.robot_scale`); unchanged for the reference."""
+    return (GaitParams() if gait is None else gait).scaled(robot_scale(robot, model))
+
+
+def robot_planner(robot: RobotDescription, model: mujoco.MjModel, planner=None):
+    """``planner`` (default ``load_planner()``: learned at the reference robot's size) for
+    ``robot``'s size: wrapped in a :class:`~jaxloco.learning.scaled.ScaledPlanner` unless the
+    robot is the reference size."""
+    planner = load_planner() if planner is None else planner
+    scale = robot_scale(robot, model)
+    return planner if scale.length == 1.0 else ScaledPlanner(planner, scale)
+
+
 def make_walking_controller(
     model: mujoco.MjModel,
     config: WBLCConfig | None = None,
@@ -174,19 +192,20 @@ def make_walking_controller(
     robot: RobotDescription = DEFAULT_ROBOT,
 ) -> WalkingController:
     """A walking controller for ``model``, a model of ``robot``: WBLC ``config`` (default:
-    the robot's walking hierarchy), gait numbers and the step ``planner`` (default:
-    ``load_planner()``, Algorithm 1's RL-PSP policy with the refined one as its fallback;
-    any planner with ``policy`` and ``psp``). ``keyframe_qpos`` sets the joint postures the
+    the robot's walking hierarchy), gait numbers (default: :func:`robot_gait`) and the step
+    ``planner`` (default: :func:`robot_planner`, ``load_planner()``'s Algorithm 1 RL-PSP
+    policy with the refined one as its fallback, scaled to the robot's size; any planner
+    with ``policy`` and ``psp``). ``keyframe_qpos`` sets the joint postures the
     posture tasks hold (default: the robot's keyframe). The planner walks at
     ``gait.com_height`` (its ``psp.h`` is replaced unless that is None)."""
     check_model(robot, model)
     config = walking_config(robot) if config is None else config
-    gait = GaitParams() if gait is None else gait
-    planner = load_planner() if planner is None else planner
+    gait = robot_gait(robot, model) if gait is None else gait
+    planner = robot_planner(robot, model) if planner is None else planner
     if gait.com_height is not None:
         # The policy's apex states and actions are in metres and m/s; only the LIPM's
         # omega changes with the height, and the PSP plans with it at run time.
-        planner = planner.replace(psp=dataclasses.replace(planner.psp, h=gait.com_height))
+        planner = planner_at_height(planner, gait.com_height)
     wblc = make_wblc(model, config)
     qpos0 = robot.keyframe_qpos(model) if keyframe_qpos is None else np.asarray(keyframe_qpos)
     # Jitted: op by op, the MJX kinematics behind it took 28.6 s (hundreds of small

@@ -16,12 +16,14 @@ from jaxloco.planner.psp import (
     safety_margins,
     smooth_reward,
 )
+from jaxloco.planner.scaling import FroudeScale, scale_psp
 from jaxloco.planner.steering import turn_schedule
 
 __all__ = [
     "INFEASIBLE",
     "SAFETY_MARGIN_NAMES",
     "ComTrajectory",
+    "FroudeScale",
     "FootstepPlan",
     "PSPParams",
     "Reason",
@@ -37,6 +39,7 @@ __all__ = [
     "plan_steps",
     "safety_margins",
     "sample_com_trajectory",
+    "scale_psp",
     "smooth_reward",
     "steering",
     "turn_schedule",

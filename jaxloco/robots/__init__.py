@@ -8,7 +8,9 @@ from jaxloco.robots.description import (
     RobotDescription,
     TaskGains,
     check_model,
+    com_height,
     effort_limits,
+    robot_scale,
 )
 from jaxloco.robots.g1 import G1
 from jaxloco.robots.valkyrie import VALKYRIE
@@ -38,6 +40,8 @@ __all__ = [
     "RobotDescription",
     "TaskGains",
     "check_model",
+    "com_height",
     "effort_limits",
     "robot_by_name",
+    "robot_scale",
 ]

@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 
 from jaxloco.dynamics.model import keyframe_qpos, load_model
+from jaxloco.planner.scaling import FroudeScale
 from jaxloco.robots.model_source import PackagedModel, build_model
 
 
@@ -90,6 +91,10 @@ class RobotDescription:
     gains: TaskGains = TaskGains()
     fall_height: float = 0.7
     """Height (m) of ``base_body`` below which the robot has fallen."""
+    length_scale: float | None = None
+    """The robot's size relative to the reference robot that the gait's and planner's
+    default numbers were chosen for (Valkyrie, 1.0): the ratio of their CoM heights above
+    the soles in their keyframes. None: derived from the model (:func:`robot_scale`)."""
 
     def __post_init__(self):
         if len(self.feet) != 2:
@@ -101,6 +106,11 @@ class RobotDescription:
                 raise ValueError(
                     f"RobotDescription {self.name!r}: {group} names joints not in joints: {extra}"
                 )
+        if self.length_scale is not None and not 0 < self.length_scale < 10:
+            raise ValueError(
+                f"RobotDescription {self.name!r}: length_scale must be in (0, 10) or None, "
+                f"got {self.length_scale}"
+            )
         if not self.fall_height > 0:
             raise ValueError(
                 f"RobotDescription {self.name!r}: fall_height must be > 0 m, got {self.fall_height}"
@@ -122,6 +132,31 @@ class RobotDescription:
     def keyframe_qpos(self, model: mujoco.MjModel) -> np.ndarray:
         """The ``qpos`` of the robot's keyframe in ``model``."""
         return keyframe_qpos(model, self.keyframe)
+
+
+REFERENCE_COM_HEIGHT = 1.0683481336352882
+"""CoM height above the soles (m) of the reference robot (Valkyrie) in its ``walk``
+keyframe: the size the gait's and planner's default numbers were chosen for."""
+
+
+def com_height(robot: RobotDescription, model: mujoco.MjModel) -> float:
+    """The CoM height above the lower sole (m) with ``robot`` standing in its keyframe."""
+    data = mujoco.MjData(model)
+    data.qpos[:] = robot.keyframe_qpos(model)
+    mujoco.mj_kinematics(model, data)
+    mujoco.mj_comPos(model, data)
+    sole = min(float(data.site_xpos[model.site(f.frame).id][2]) for f in robot.feet)
+    return float(data.subtree_com[0][2]) - sole
+
+
+def robot_scale(robot: RobotDescription, model: mujoco.MjModel) -> FroudeScale:
+    """The Froude scale of ``robot`` (``length_scale``, else its CoM height in the keyframe
+    over the reference's): gait and planner numbers chosen for the reference robot serve it
+    scaled (:meth:`~jaxloco.locomotion.gait.GaitParams.scaled`,
+    :class:`~jaxloco.learning.scaled.ScaledPlanner`)."""
+    if robot.length_scale is not None:
+        return FroudeScale(float(robot.length_scale))
+    return FroudeScale(com_height(robot, model) / REFERENCE_COM_HEIGHT)
 
 
 def effort_limits(model: mujoco.MjModel) -> np.ndarray:

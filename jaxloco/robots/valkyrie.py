@@ -41,4 +41,5 @@ VALKYRIE = RobotDescription(
     ),
     keyframe="walk",
     fall_height=0.7,
+    length_scale=1.0,  # the reference robot: the default numbers were chosen for it
 )
