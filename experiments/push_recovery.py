@@ -27,13 +27,20 @@ import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
-from jaxloco.app import RunConfig, launch, register, run_in_hydra
+from jaxloco.app import (
+    RunConfig,
+    launch,
+    register,
+    robot_physics_schema,
+    robot_setup,
+    run_in_hydra,
+)
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import walking_config
-from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
+from jaxloco.locomotion.walking import robot_planner
 from jaxloco.planner import plan_steps
 from jaxloco.runtime import (
     write_json,
@@ -61,10 +68,15 @@ class PushRecoveryConfig(RunConfig):
     steps_after: int = 3
     """Steps that must begin after the push for it to count as recovered."""
     compare_no_replan: bool = True
+    robot: str = "valkyrie"
+    """A shipped robot (``jaxloco.robots.ROBOTS``): valkyrie, g1 or apollo."""
     gait: GaitSchema = field(default_factory=GaitSchema)
-    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
-    physics: PhysicsSchema = field(default_factory=PhysicsSchema)
-    """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
+    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`), in the
+    reference robot's (Valkyrie's) size: scaled to ``robot``'s (Froude scaling)."""
+    physics: PhysicsSchema = field(default_factory=robot_physics_schema(PhysicsSchema))
+    """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`); the torque limit
+    and solver iterations default to the robot's (Valkyrie: the paper's 500 N m bound, 2
+    and 4 iterations; the others: their own effort limits, MuJoCo's default solver)."""
     gains_file: str = ""
     """A tuned gains file (``jaxloco tune-push`` writes ``tuned_gains.json``): its WBLC gains
     and its gait section (``replan_gamma``, ``replan_threshold``) replace the defaults."""
@@ -116,16 +128,18 @@ def _outcome(res, push_time, steps_after):
 
 
 def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
-    model = load_valkyrie()
+    robot, model, gait = robot_setup(cfg.robot, to_params(GaitParams, cfg.gait))
     physics = to_params(PhysicsParams, cfg.physics)
-    gait = apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file)
-    config = apply_gains_file(walking_config(), cfg.gains_file)
+    gait = apply_gait_file(gait, cfg.gains_file)
+    config = apply_gains_file(walking_config(robot), cfg.gains_file)
     variants = {"replan": gait}
     if cfg.compare_no_replan:
         variants["no_replan"] = dataclasses.replace(gait, replan=False)
-    planner = load_planner(cfg.planner or None)
+    planner = robot_planner(robot, model, load_planner(cfg.planner) if cfg.planner else None)
     ctrls = {
-        k: make_walking_controller(model, config=config, gait=g, planner=planner)
+        k: make_walking_controller(
+            model, config=config, gait=g, planner=planner, robot=robot
+        )
         for k, g in variants.items()
     }
     steps = {k: jax.jit(c.step) for k, c in ctrls.items()}  # one compile per variant

@@ -1,4 +1,4 @@
-"""Fig. 11: Valkyrie walks while steering (12 steps at +18.8 deg, 5 straight, 12 at -18.8).
+"""Fig. 11: the robot walks while steering (12 steps at +18.8 deg, 5 straight, 12 at -18.8).
 
     jaxloco walk-steer                              # the paper's schedule
     jaxloco walk-steer 'segments=[[4,10.0]]' video=false
@@ -20,13 +20,20 @@ import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
 
-from jaxloco.app import RunConfig, launch, register, run_in_hydra
+from jaxloco.app import (
+    RunConfig,
+    launch,
+    register,
+    robot_physics_schema,
+    robot_setup,
+    run_in_hydra,
+)
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import walking_config
-from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.learning import load_planner
 from jaxloco.locomotion import GaitParams, make_walking_controller
+from jaxloco.locomotion.walking import robot_planner
 from jaxloco.planner import turn_schedule
 from jaxloco.runtime import (
     write_json,
@@ -52,10 +59,15 @@ class WalkSteerConfig(RunConfig):
     extra_steps: int = 2
     """Straight steps after the schedule before the run ends."""
     max_duration: float = 40.0
+    robot: str = "valkyrie"
+    """A shipped robot (``jaxloco.robots.ROBOTS``): valkyrie, g1 or apollo."""
     gait: GaitSchema = field(default_factory=GaitSchema)
-    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`)."""
-    physics: PhysicsSchema = field(default_factory=PhysicsSchema)
-    """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`)."""
+    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`), in the
+    reference robot's (Valkyrie's) size: scaled to ``robot``'s (Froude scaling)."""
+    physics: PhysicsSchema = field(default_factory=robot_physics_schema(PhysicsSchema))
+    """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`); the torque limit
+    and solver iterations default to the robot's (Valkyrie: the paper's 500 N m bound, 2
+    and 4 iterations; the others: their own effort limits, MuJoCo's default solver)."""
     gains_file: str = ""
     """A tuned gains file (``jaxloco tune-push`` writes ``tuned_gains.json``): its WBLC gains
     and its gait section (``replan_gamma``, ``replan_threshold``) replace the defaults."""
@@ -71,12 +83,12 @@ register("walk_steer", WalkSteerConfig)
 
 
 def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
-    model = load_valkyrie()
+    robot, model, gait = robot_setup(cfg.robot, to_params(GaitParams, cfg.gait))
     turns = turn_schedule([tuple(s) for s in cfg.segments])
-    planner = load_planner(cfg.planner or None)
-    gait = apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file)
-    config = apply_gains_file(walking_config(), cfg.gains_file)
-    ctrl = make_walking_controller(model, config=config, gait=gait, planner=planner)
+    planner = robot_planner(robot, model, load_planner(cfg.planner) if cfg.planner else None)
+    gait = apply_gait_file(gait, cfg.gains_file)
+    config = apply_gains_file(walking_config(robot), cfg.gains_file)
+    ctrl = make_walking_controller(model, config=config, gait=gait, planner=planner, robot=robot)
     total = len(turns) + cfg.extra_steps
     res = simulate_walk(
         model,

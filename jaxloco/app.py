@@ -29,6 +29,8 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
+from jaxloco.locomotion.walking import robot_gait
+from jaxloco.robots import robot_by_name
 from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, watchdog
 
 
@@ -43,10 +45,47 @@ class RunConfig:
     """Resolution of the figures written (dots per inch)."""
 
 
+def robot_physics(field: str) -> str:
+    """A config value: the config's ``robot``'s default for the simulation setting ``field``
+    (``torque_limit``, ``iterations`` or ``ls_iterations``; see
+    :class:`~jaxloco.robots.RobotDescription`), resolved when the config is read."""
+    return "${jaxloco_robot_physics:${robot}," + field + "}"
+
+
+ROBOT_PHYSICS = ("torque_limit", "iterations", "ls_iterations")
+
+
+def _robot_physics(name: str, field: str):
+    if field not in ROBOT_PHYSICS:
+        raise ValueError(f"robot_physics: field must be one of {ROBOT_PHYSICS}; got {field!r}")
+    robot = robot_by_name(name)
+    if field == "torque_limit":
+        return robot.torque_limit
+    return robot.solver_iterations[ROBOT_PHYSICS.index(field) - 1]
+
+
 def register(name: str, node: type, group: str | None = None) -> None:
     """Make the config dataclass ``node`` hydra's config ``name`` (in config group
-    ``group``: an option picked by ``group=name`` on the command line)."""
+    ``group``: an option picked by ``group=name`` on the command line), and the resolver
+    behind :func:`robot_physics`."""
     ConfigStore.instance().store(name=name, node=node, group=group)
+    if not OmegaConf.has_resolver("jaxloco_robot_physics"):
+        OmegaConf.register_new_resolver("jaxloco_robot_physics", _robot_physics)
+
+
+def robot_physics_schema(schema: type):
+    """A default factory for an experiment's ``physics`` node (a ``config_schema`` of
+    :class:`~jaxloco.sim.mjx_loop.PhysicsParams`) whose torque limit and solver iterations
+    are the config's ``robot``'s defaults."""
+    return lambda: schema(**{f: robot_physics(f) for f in ROBOT_PHYSICS})
+
+
+def robot_setup(name: str, gait=None):
+    """The shipped robot ``name``, its model, and ``gait`` (reference-size numbers, e.g. a
+    config's) scaled to its size: ``(robot, model, gait)``."""
+    robot = robot_by_name(name)
+    model = robot.load()
+    return robot, model, robot_gait(robot, model, gait)
 
 
 def run_in_hydra(cfg, run: Callable, as_object: bool = True) -> tuple[dict, Path]:

@@ -80,5 +80,6 @@ APOLLO = RobotDescription(
         j for j in APOLLO_JOINTS if not j.endswith(("shoulder_fe", "shoulder_aa", "knee_fe"))
     ),
     keyframe="walk",
+    torque_limits_in_qp=True,
     fall_height=0.6,
 )

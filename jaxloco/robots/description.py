@@ -91,6 +91,18 @@ class RobotDescription:
     gains: TaskGains = TaskGains()
     fall_height: float = 0.7
     """Height (m) of ``base_body`` below which the robot has fallen."""
+    torque_limit: float | str = "model"
+    """The actuator bound the robot's experiments simulate by default (``physics.
+    torque_limit``): ``"model"``, the model's own effort limits; Valkyrie: the paper's
+    500 N m at every joint."""
+    solver_iterations: tuple[int, int] = (100, 50)
+    """MuJoCo's constraint-solver (iterations, line-search iterations) the robot's
+    experiments simulate with by default (``physics.iterations``, ``physics.ls_iterations``):
+    MuJoCo's own defaults, as the model ships; Valkyrie: (2, 4), the settings all its
+    results were measured with."""
+    torque_limits_in_qp: bool = False
+    """Whether the walking controller keeps the legs' torques within the model's effort
+    limits in its force QP by default (``WBLCConfig.torque_limits_in_qp``)."""
     length_scale: float | None = None
     """The robot's size relative to the reference robot that the gait's and planner's
     default numbers were chosen for (Valkyrie, 1.0): the ratio of their CoM heights above
@@ -110,6 +122,19 @@ class RobotDescription:
             raise ValueError(
                 f"RobotDescription {self.name!r}: length_scale must be in (0, 10) or None, "
                 f"got {self.length_scale}"
+            )
+        if not (
+            self.torque_limit == "model"
+            or (isinstance(self.torque_limit, (int, float)) and self.torque_limit > 0)
+        ):
+            raise ValueError(
+                f"RobotDescription {self.name!r}: torque_limit must be 'model' or > 0 N m, "
+                f"got {self.torque_limit!r}"
+            )
+        if len(self.solver_iterations) != 2 or min(self.solver_iterations) < 1:
+            raise ValueError(
+                f"RobotDescription {self.name!r}: solver_iterations must be two ints >= 1, "
+                f"got {self.solver_iterations}"
             )
         if not self.fall_height > 0:
             raise ValueError(

@@ -75,5 +75,6 @@ G1 = RobotDescription(
         if not j.endswith(("shoulder_pitch_joint", "shoulder_roll_joint", "knee_joint"))
     ),
     keyframe="walk",
+    torque_limits_in_qp=True,
     fall_height=0.45,
 )

@@ -41,5 +41,7 @@ VALKYRIE = RobotDescription(
     ),
     keyframe="walk",
     fall_height=0.7,
+    torque_limit=500.0,  # the paper's authors' bound at every joint
+    solver_iterations=(2, 4),  # PhysicsParams' defaults: every Valkyrie result used them
     length_scale=1.0,  # the reference robot: the default numbers were chosen for it
 )

@@ -36,7 +36,7 @@ def simulate_walk(
     pushes: tuple[Push, ...] = (),
     max_steps: int | None = None,
     physics: PhysicsParams | None = None,
-    fall_height: float = 0.7,
+    fall_height: float | None = None,
     progress: bool | str = False,
     step=None,
 ) -> WalkRun:
@@ -44,7 +44,9 @@ def simulate_walk(
     begun), turning by ``turns`` (rad per step) and pushed by ``pushes``.
 
     ``step``: ``jax.jit(ctrl.step)`` to reuse across runs (default: jitted here, so each
-    call traces again; the persistent compile cache saves the compile)."""
+    call traces again; the persistent compile cache saves the compile). ``fall_height``:
+    base height (m) that ends the run as a fall (default: the robot's)."""
+    fall_height = ctrl.robot.fall_height if fall_height is None else fall_height
     if duration <= 0:
         raise ValueError(f"duration must be > 0; got {duration}")
     sim_model = physics_model(model, physics) if physics is not None else model
