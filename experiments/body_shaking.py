@@ -4,7 +4,7 @@
     jaxloco body-shaking duration=2 yaw_amplitude=0.4 frequency_hz=1.5
     jaxloco body-shaking joint_limits=false     # the comparison without joint ranges
 
-Valkyrie stands in double support from the walking keyframe while its body (torso) frame
+The robot stands in double support from its keyframe while its body (torso) frame
 follows an oscillating orientation: a rotation vector ``(roll a_r sin wt, pitch a_p sin(wt +
 pi/2), yaw a_y sin wt)``, with its rates as feed-forward (exact to first order in the angle).
 The same six tasks run under ``H1 = {CoM, CAM, body, partial posture, pelvis, full posture}``
@@ -26,7 +26,7 @@ from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.control.gains import apply_gains_file
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams
-from jaxloco.dynamics.model import load_valkyrie
+from jaxloco.robots import robot_by_name
 from jaxloco.runtime import (
     write_json,
 )
@@ -37,6 +37,8 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class BodyShakingConfig(RunConfig):
+    robot: str = "valkyrie"
+    """A shipped robot (``jaxloco.robots.ROBOTS``): valkyrie, g1 or apollo."""
     hierarchies: list[str] = field(default_factory=lambda: ["H1", "H2"])
     duration: float = 5.0
     roll_amplitude: float = 0.15
@@ -66,8 +68,8 @@ class BodyShakingConfig(RunConfig):
 register("body_shaking", BodyShakingConfig)
 
 
-def simulate(model, which: str, cfg: BodyShakingConfig):
-    config = body_shaking_config(which, pinv_rtol=cfg.pinv_rtol)
+def simulate(model, robot, which: str, cfg: BodyShakingConfig):
+    config = body_shaking_config(which, robot, pinv_rtol=cfg.pinv_rtol)
     shaking = ShakingParams(
         cfg.roll_amplitude, cfg.pitch_amplitude, cfg.yaw_amplitude, cfg.frequency_hz, cfg.ramp
     )
@@ -77,11 +79,13 @@ def simulate(model, which: str, cfg: BodyShakingConfig):
         shaking,
         cfg.duration,
         progress=f"shaking {which}",
+        robot=robot,
     )
 
 
 def run(cfg: BodyShakingConfig, out_dir: Path) -> dict:
-    model = load_valkyrie()
+    robot = robot_by_name(cfg.robot)
+    model = robot.load()
     if not cfg.torque_limits:
         model.actuator_ctrllimited[:] = 0
         model.actuator_forcelimited[:] = 0
@@ -89,7 +93,7 @@ def run(cfg: BodyShakingConfig, out_dir: Path) -> dict:
         model.jnt_limited[:] = 0
     runs, results = {}, {}
     for which in cfg.hierarchies:
-        res = simulate(model, which, cfg)
+        res = simulate(model, robot, which, cfg)
         runs[which] = res
         results[which] = shaking_metrics(res)
         log.info("%s: %s", which, results[which])

@@ -27,12 +27,20 @@ disk as soon as it is done.
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import hydra
 from omegaconf import OmegaConf
 
-from jaxloco.app import RunConfig, launch, register, run_in_hydra
+from jaxloco.app import (
+    RunConfig,
+    launch,
+    register,
+    robot_default,
+    robot_physics_schema,
+    robot_setup,
+    run_in_hydra,
+)
 from jaxloco.config import config_schema, to_params
 from jaxloco.control.force_qp import ForceQPParams
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
@@ -51,21 +59,35 @@ PhysicsSchema = config_schema(PhysicsParams)
 ForceQPSchema = config_schema(ForceQPParams, CLOSED_LOOP_QP)
 SearchSchema = config_schema(LimitSearch)
 FineSearchSchema = config_schema(LimitSearch, FINE_SEARCH)
+# The search's bracket and fall height follow the robot (the defaults are Valkyrie's).
+ROBOT_SEARCH = {
+    "impulse_range": [0.0, robot_default("impulse_high")],
+    "fall_height": robot_default("fall_height"),
+}
 TASKS = ("limits", "grid")
 
 
 @dataclass
 class PushSweepConfig(RunConfig):
     defaults: list[Any] = field(default_factory=lambda: ["_self_", {"search": "default"}])
+    robot: str = "valkyrie"
+    """A shipped robot (``jaxloco.robots.ROBOTS``): valkyrie, g1 or apollo."""
     task: str = "limits"
     """``limits``: the limit search (``search``); ``grid``: the pushes of ``sweep``."""
     search: Any = None
     """The limit search (:class:`jaxloco.sweep.limits.LimitSearch`); ``search=fine`` picks
     the finer preset (``limits.FINE_SEARCH``)."""
-    sweep: SweepSchema = field(default_factory=SweepSchema)
+    sweep: SweepSchema = field(
+        default_factory=lambda: SweepSchema(fall_height=robot_default("fall_height"))
+    )
     """The pushes of ``task=grid``."""
     gait: GaitSchema = field(default_factory=GaitSchema)
-    physics: PhysicsSchema = field(default_factory=PhysicsSchema)
+    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`), in the
+    reference robot's (Valkyrie's) size: scaled to ``robot``'s (Froude scaling)."""
+    physics: PhysicsSchema = field(default_factory=robot_physics_schema(PhysicsSchema))
+    """Simulation settings; the torque limit and solver iterations default to the robot's
+    (Valkyrie: the paper's 500 N m bound, 2 and 4 iterations; the others: their own effort
+    limits, MuJoCo's default solver)."""
     force_qp: ForceQPSchema = field(default_factory=ForceQPSchema)
     """The walking WBLC's contact-force QP (defaults: ``presets.CLOSED_LOOP_QP``), e.g.
     ``force_qp.iterations=200``."""
@@ -92,9 +114,10 @@ class PushSweepConfig(RunConfig):
     the walking preset's (``presets.WALKING_INVERSES``)."""
     torque_pinv_rtol: float = 1e-8
     """The rank threshold of Eq. 19's torque solve (``WBLCConfig.torque_pinv_rtol``)."""
-    torque_limits_in_qp: bool = False
+    torque_limits_in_qp: Optional[bool] = None  # noqa: UP045 (OmegaConf needs typing.Optional)
     """Keep the legs' torques within the model's effort limits in the force QP
-    (``WBLCConfig.torque_limits_in_qp``); pair with ``physics.torque_limit=model``."""
+    (``WBLCConfig.torque_limits_in_qp``); pair with ``physics.torque_limit=model``. None:
+    the robot's default (Valkyrie: off; the others: on)."""
     planner: str = ""
     """A step-policy checkpoint folder (``jaxloco train-planner`` writes one); empty: the
     shipped default. Use a new run directory for another policy."""
@@ -107,19 +130,22 @@ class PushSweepConfig(RunConfig):
 
 
 register("push_sweep", PushSweepConfig)
-register("default", SearchSchema, group="search")
-register("fine", FineSearchSchema, group="search")
+register("default", SearchSchema(**ROBOT_SEARCH), group="search")
+register("fine", FineSearchSchema(**ROBOT_SEARCH), group="search")
 
 
 def controller_settings(cfg) -> dict:
-    """The walking controller under test: gait, physics and WBLC config (tuned gains
-    applied)."""
+    """The walking controller under test: robot, gait (scaled to the robot), physics and
+    WBLC config (tuned gains applied)."""
+    robot, _, gait = robot_setup(cfg.robot, to_params(GaitParams, cfg.gait))
     return {
+        "robot": robot.name,
         "planner": cfg.planner or None,
-        "gait": apply_gait_file(to_params(GaitParams, cfg.gait), cfg.gains_file),
+        "gait": apply_gait_file(gait, cfg.gains_file),
         "physics": to_params(PhysicsParams, cfg.physics),
         "wblc": apply_gains_file(
             walking_config(
+                robot,
                 pinv_rtol=cfg.pinv_rtol,
                 whiten_tasks=cfg.whiten_tasks,
                 torque_pinv_rtol=cfg.torque_pinv_rtol,

@@ -45,39 +45,56 @@ class RunConfig:
     """Resolution of the figures written (dots per inch)."""
 
 
-def robot_physics(field: str) -> str:
-    """A config value: the config's ``robot``'s default for the simulation setting ``field``
-    (``torque_limit``, ``iterations`` or ``ls_iterations``; see
-    :class:`~jaxloco.robots.RobotDescription`), resolved when the config is read."""
-    return "${jaxloco_robot_physics:${robot}," + field + "}"
+ROBOT_DEFAULTS = ("torque_limit", "iterations", "ls_iterations", "fall_height", "impulse_high")
+"""The config values that default to the config's ``robot``'s (:func:`robot_default`)."""
+
+REFERENCE_MASS = 135.9
+"""Valkyrie's mass (kg): the limit search's default impulse bracket (0-128 N s) is for it."""
+REFERENCE_IMPULSE_HIGH = 128.0
 
 
-ROBOT_PHYSICS = ("torque_limit", "iterations", "ls_iterations")
+def robot_default(field: str) -> str:
+    """A config value: the config's ``robot``'s default for ``field``, resolved when the
+    config is read: the simulation's ``torque_limit``, solver ``iterations`` and
+    ``ls_iterations`` (:class:`~jaxloco.robots.RobotDescription`), the ``fall_height`` of its
+    base, and ``impulse_high``, the limit search's top impulse (N s): 128 N s for Valkyrie,
+    the same velocity change (impulse / mass) for another robot."""
+    if field not in ROBOT_DEFAULTS:
+        raise ValueError(f"robot_default: field must be one of {ROBOT_DEFAULTS}; got {field!r}")
+    return "${jaxloco_robot:${robot}," + field + "}"
 
 
-def _robot_physics(name: str, field: str):
-    if field not in ROBOT_PHYSICS:
-        raise ValueError(f"robot_physics: field must be one of {ROBOT_PHYSICS}; got {field!r}")
+def _robot_value(name: str, field: str):
     robot = robot_by_name(name)
     if field == "torque_limit":
         return robot.torque_limit
-    return robot.solver_iterations[ROBOT_PHYSICS.index(field) - 1]
+    if field in ("iterations", "ls_iterations"):
+        return robot.solver_iterations[ROBOT_DEFAULTS.index(field) - 1]
+    if field == "fall_height":
+        return robot.fall_height
+    if field == "impulse_high":
+        if robot.length_scale == 1.0:  # the reference robot: the bracket as chosen
+            return REFERENCE_IMPULSE_HIGH
+        mass = float(robot.load().body_subtreemass[0])
+        return round(REFERENCE_IMPULSE_HIGH * mass / REFERENCE_MASS, 1)
+    raise ValueError(f"robot_default: field must be one of {ROBOT_DEFAULTS}; got {field!r}")
 
 
 def register(name: str, node: type, group: str | None = None) -> None:
     """Make the config dataclass ``node`` hydra's config ``name`` (in config group
     ``group``: an option picked by ``group=name`` on the command line), and the resolver
-    behind :func:`robot_physics`."""
+    behind :func:`robot_default`."""
     ConfigStore.instance().store(name=name, node=node, group=group)
-    if not OmegaConf.has_resolver("jaxloco_robot_physics"):
-        OmegaConf.register_new_resolver("jaxloco_robot_physics", _robot_physics)
+    if not OmegaConf.has_resolver("jaxloco_robot"):
+        OmegaConf.register_new_resolver("jaxloco_robot", _robot_value)
 
 
 def robot_physics_schema(schema: type):
     """A default factory for an experiment's ``physics`` node (a ``config_schema`` of
     :class:`~jaxloco.sim.mjx_loop.PhysicsParams`) whose torque limit and solver iterations
     are the config's ``robot``'s defaults."""
-    return lambda: schema(**{f: robot_physics(f) for f in ROBOT_PHYSICS})
+    fields = ("torque_limit", "iterations", "ls_iterations")
+    return lambda: schema(**{f: robot_default(f) for f in fields})
 
 
 def robot_setup(name: str, gait=None):

@@ -180,7 +180,9 @@ def robot_planner(robot: RobotDescription, model: mujoco.MjModel, planner=None):
     robot is the reference size."""
     planner = load_planner() if planner is None else planner
     scale = robot_scale(robot, model)
-    return planner if scale.length == 1.0 else ScaledPlanner(planner, scale)
+    if scale.length == 1.0 or isinstance(planner, ScaledPlanner):  # already at a size
+        return planner
+    return ScaledPlanner(planner, scale)
 
 
 def make_walking_controller(

@@ -23,7 +23,7 @@ def simulate_shaking(
     config: WBLCConfig,
     shaking: ShakingParams,
     duration: float,
-    fall_height: float = 0.7,
+    fall_height: float | None = None,
     progress: bool | str = False,
     gains: dict | None = None,
     robot: RobotDescription = DEFAULT_ROBOT,
@@ -42,13 +42,15 @@ def shaking_simulator(
     model: mujoco.MjModel,
     config: WBLCConfig,
     shaking: ShakingParams,
-    fall_height: float = 0.7,
+    fall_height: float | None = None,
     robot: RobotDescription = DEFAULT_ROBOT,
 ):
     """``simulate(duration, gains=None, frequency_hz=None, progress=False) -> ClosedLoopLog``,
     as :func:`simulate_shaking`. The gains and the frequency (default: ``shaking``'s) are
     arguments of one compiled controller, so runs that differ only in them (tuning's
-    validation, held-out frequencies) share the compile and the set-up."""
+    validation, held-out frequencies) share the compile and the set-up. ``fall_height``
+    (m): base height that ends a run as a fall (default: the robot's)."""
+    fall_height = robot.fall_height if fall_height is None else fall_height
     ctrl = make_wblc(model, config)
     data0 = mujoco.MjData(model)
     data0.qpos[:] = robot.keyframe_qpos(model)

@@ -24,6 +24,7 @@ from tqdm.auto import tqdm
 from jaxloco.control.presets import walking_config
 from jaxloco.learning.checkpoint import load_planner
 from jaxloco.locomotion import make_walking_controller
+from jaxloco.locomotion.walking import robot_planner
 from jaxloco.robots import robot_by_name
 from jaxloco.sim.mjx_loop import physics_model
 from jaxloco.sim.push import PushArrays, body_index
@@ -117,7 +118,9 @@ class ChunkRunner:
             self.model,
             config=job.wblc or walking_config(self.robot),
             gait=job.gait,
-            planner=load_planner(job.planner),
+            planner=robot_planner(
+                self.robot, self.model, load_planner(job.planner) if job.planner else None
+            ),
             robot=self.robot,
         )
         self.horizon_steps = int(round(job.horizon / self.model.opt.timestep))

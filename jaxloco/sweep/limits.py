@@ -385,12 +385,13 @@ def run_limit_search(
     gait=None,
     physics=None,
     wblc=None,
-    push_body: str = DEFAULT_ROBOT.base_body,
+    push_body: str | None = None,
     workers: int = 0,
     address: str | None = None,
     config: dict | None = None,
     progress: bool = True,
     planner: str | None = None,
+    robot: str = DEFAULT_ROBOT.name,
 ) -> LimitResult:
     """:func:`search_limits` on the walking controller: every round a sweep
     (:func:`~jaxloco.sweep.run.run_table`) on one set of workers kept for the whole search
@@ -408,7 +409,9 @@ def run_limit_search(
         qvel_noise=search.qvel_noise,
         fall_height=search.fall_height,
     )
-    job = make_job(spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body)
+    job = make_job(
+        spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body, robot=robot
+    )
     job = job.replace(planner=None if planner is None else str(planner))
     per_round = len(search.cells()) * search.replicas
     if workers == 0:

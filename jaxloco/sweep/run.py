@@ -28,7 +28,7 @@ import numpy as np
 from jaxloco.control.presets import walking_config
 from jaxloco.control.wblc import WBLCConfig
 from jaxloco.locomotion import GaitParams
-from jaxloco.robots import DEFAULT_ROBOT
+from jaxloco.robots import DEFAULT_ROBOT, robot_by_name
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep.chunks import ChunkRunner, chunk_rows
 from jaxloco.sweep.executors import available_cores, run_in_process
@@ -56,7 +56,7 @@ def run_sweep(
     gait: GaitParams | None = None,
     physics: PhysicsParams | None = None,
     wblc: WBLCConfig | None = None,
-    push_body: str = DEFAULT_ROBOT.base_body,
+    push_body: str | None = None,
     nthread: int | None = None,
     config: dict | None = None,
     progress: bool = True,
@@ -64,6 +64,7 @@ def run_sweep(
     workers: int = 1,
     address: str | None = None,
     planner: str | None = None,
+    robot: str = DEFAULT_ROBOT.name,
 ) -> SweepResult:
     """Run (or resume) the sweep ``spec`` into ``run_dir``.
 
@@ -75,8 +76,12 @@ def run_sweep(
     ``wblc``: the controller's WBLC configuration (default: the walking preset).
     ``workers``/``address``: where the chunks run (:func:`run_table`).
     ``planner``: the step policy's checkpoint folder (None: the shipped default).
+    ``robot``: the shipped robot pushed (:data:`jaxloco.robots.ROBOTS`); ``gait`` is its own
+    (e.g. :func:`~jaxloco.locomotion.walking.robot_gait`), ``push_body`` None: its base.
     """
-    job = make_job(spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body, nthread)
+    job = make_job(
+        spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body, nthread, robot
+    )
     job = job.replace(planner=None if planner is None else str(planner))
     manifest = {"spec_digest": spec.digest(), "spec": dataclasses.asdict(spec)}
     return run_table(expand(spec), job, config, progress, max_chunks, workers, address, manifest)
@@ -90,15 +95,18 @@ def make_job(
     gait: GaitParams | None = None,
     physics: PhysicsParams | None = None,
     wblc: WBLCConfig | None = None,
-    push_body: str = DEFAULT_ROBOT.base_body,
+    push_body: str | None = None,
     nthread: int | None = None,
+    robot: str = DEFAULT_ROBOT.name,
 ) -> SweepJob:
-    """The :class:`SweepJob` of running ``spec``'s pushes into ``run_dir`` (MJX: the chunk
-    size rounded up to a multiple of the devices)."""
+    """The :class:`SweepJob` of running ``spec``'s pushes on ``robot`` into ``run_dir``
+    (MJX: the chunk size rounded up to a multiple of the devices). Defaults: the reference
+    gait numbers, the paper's physics, the robot's walking WBLC, pushes on its base."""
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}; got {backend!r}")
     if chunk_size < 1:
         raise ValueError(f"chunk_size must be >= 1; got {chunk_size}")
+    description = robot_by_name(robot)
     devices = jax.devices()
     if backend == "mjx" and chunk_size % len(devices):
         chunk_size = len(devices) * math.ceil(chunk_size / len(devices))
@@ -109,8 +117,9 @@ def make_job(
         chunk_size=chunk_size,
         gait=GaitParams() if gait is None else gait,
         physics=PhysicsParams() if physics is None else physics,
-        wblc=wblc or walking_config(),  # what make_walking_controller uses too
-        push_body=push_body,
+        wblc=wblc or walking_config(description),  # what make_walking_controller uses too
+        push_body=description.base_body if push_body is None else push_body,
+        robot=robot,
         x64=bool(jax.config.jax_enable_x64),
         cache_dir=jax.config.jax_compilation_cache_dir or None,
         nthread=nthread or None,
