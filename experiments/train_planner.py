@@ -11,6 +11,7 @@ differentiable planner) and save it with its learning curve.
     jaxloco train-planner resume_from=runs/planner/checkpoint
     jaxloco train-planner method=ppo                   # Brax's PPO baseline instead
     jaxloco train-planner method=ppo ppo.num_timesteps=8000000 ppo.seed=1
+    jaxloco train-planner robot=g1                     # a policy for the Unitree G1's size
 
 Writes to hydra's run directory: ``checkpoint/`` (weights, config, training state; load it
 with ``jaxloco.learning.load_planner(path)``), ``learning_curve.png`` (return, survival,
@@ -18,6 +19,13 @@ spread and survival basin against iterations and wall time) and ``history.json``
 ``method=ppo`` the checkpoint holds the PPO networks (also loaded by ``load_planner``) and
 the curve is the survival basin and Brax's episode reward against env steps and wall time;
 ``planner.*`` and ``starts.*`` apply to both methods.
+
+``robot=g1`` (any shipped robot other than Valkyrie): the LIPM is the same at every size
+once lengths scale by the robot's size ``L`` and times by ``sqrt(L)`` (Froude scaling,
+:mod:`jaxloco.planner.scaling`), so training runs in the reference size's units and the
+checkpoint is a scaled one: ``checkpoint/scaled.json`` (the robot's scale) wrapping
+``checkpoint/reference/``. Its survival basin is also measured at the robot's size, on the
+robot's apex-state box, on a draw independent of training's (``robot_basin``).
 """
 
 import logging
@@ -25,8 +33,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import hydra
+import jax
 
-from jaxloco.app import RunConfig, launch, register, run_in_hydra
+from jaxloco.app import RunConfig, launch, register, robot_setup, run_in_hydra
 from jaxloco.config import config_schema, to_params
 from jaxloco.learning import (
     WARM_START,
@@ -40,10 +49,13 @@ from jaxloco.learning import (
     save_checkpoint,
     train,
 )
-from jaxloco.learning.checkpoint import load_checkpoint_config, load_train_state
+from jaxloco.learning.checkpoint import load_checkpoint_config, load_planner, load_train_state
+from jaxloco.learning.evaluation import survival_basin
 from jaxloco.learning.ppo import PPOConfig, save_ppo_checkpoint, train_ppo
+from jaxloco.learning.scaled import save_scaled_checkpoint, scale_box
 from jaxloco.learning.training import params_fingerprint
 from jaxloco.planner import PSPParams
+from jaxloco.robots import robot_scale
 from jaxloco.runtime import write_json
 from jaxloco.viz.learning import plot_learning_curve, plot_ppo_curve
 
@@ -61,6 +73,8 @@ METHODS = ("rl_psp", "ppo")
 
 @dataclass
 class TrainPlannerConfig(RunConfig):
+    robot: str = "valkyrie"
+    """The robot the policy is for (``jaxloco.robots.ROBOTS``); see the module doc."""
     method: str = "rl_psp"
     """``rl_psp``: Algorithm 1, then the refinement (the paper's learner); ``ppo``: Brax's
     PPO on the same step task (a baseline; its settings are ``ppo.*``)."""
@@ -102,7 +116,14 @@ def build_config(cfg: TrainPlannerConfig) -> TrainConfig:
 def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
     if cfg.method not in METHODS:
         raise ValueError(f"method must be one of {list(METHODS)}; got {cfg.method!r}")
+    robot, model, _ = robot_setup(cfg.robot)  # a bad name fails before training
+    scale = robot_scale(robot, model)
     if cfg.method == "ppo":
+        if scale.length != 1.0:
+            raise ValueError(
+                f"robot: method=ppo writes reference-size checkpoints only; got {cfg.robot!r} "
+                "(the walking controller scales any planner to its robot: robot_planner)"
+            )
         return run_ppo(cfg, out_dir)
     state = None
     if cfg.resume_from:
@@ -133,7 +154,14 @@ def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
             "start": ref.start,
             "best": ref.best,
         }
-    save_checkpoint(out_dir / "checkpoint", result.best_params, config, info, result.state)
+    if scale.length == 1.0:
+        save_checkpoint(out_dir / "checkpoint", result.best_params, config, info, result.state)
+    else:
+        reference = out_dir / "checkpoint" / "reference"
+        save_checkpoint(reference, result.best_params, config, info, result.state)
+        save_scaled_checkpoint(out_dir / "checkpoint", reference, scale, robot.name)
+        info["robot"] = robot_basin(out_dir / "checkpoint", config, robot.name, scale)
+        log.info("at %s's size: %s", robot.name, info["robot"])
     write_json(out_dir / "history.json", {"info": info, "history": result.history})
     fig = plot_learning_curve(result.history, title="RL-PSP training")
     fig.savefig(out_dir / "learning_curve.png", dpi=cfg.dpi)
@@ -162,6 +190,33 @@ def run(cfg: TrainPlannerConfig, out_dir: Path) -> dict:
         f", steering basin {_fmt(steering)}" if steering is not None else "",
     )
     return info
+
+
+ROBOT_BASIN_SEED = 777
+"""The draw of the robot-size basin: independent of training's and evaluation's."""
+
+
+def robot_basin(path, config: TrainConfig, name: str, scale) -> dict:
+    """The survival basin of the scaled checkpoint at ``path`` on the robot's apex-state box
+    (``config.starts``' box in the robot's units), 65,536 states of an independent draw."""
+    planner = load_planner(path)
+    box = scale_box(config.starts, scale)
+    basin, _, _ = survival_basin(
+        planner.policy,
+        planner.psp,
+        jax.random.PRNGKey(ROBOT_BASIN_SEED),
+        65536,
+        config.evaluation.num_steps,
+        box,
+    )
+    return {
+        "name": name,
+        "length_scale": scale.length,
+        "box_low": list(box.box_low),
+        "box_high": list(box.box_high),
+        "basin": float(basin),
+        "seed": ROBOT_BASIN_SEED,
+    }
 
 
 def run_ppo(cfg: TrainPlannerConfig, out_dir: Path) -> dict:

@@ -44,6 +44,8 @@ SHIPPED_POLICIES = {
     "default": DEFAULT_POLICY,
     "algorithm1": "policies/rl_psp",
     "refined": "policies/rl_psp_refined",
+    "g1": "policies/g1",
+    "apollo": "policies/apollo",
 }
 """Policies in ``assets/``. ``algorithm1``: Algorithm 1 alone, as the paper (``jaxloco
 train-planner refine.iterations=0 actor_critic.max_iterations=600``). ``refined``: the same
@@ -51,12 +53,16 @@ weights refined through the planner (600 + 300 steps at horizon 4): a larger sur
 basin, but alone it recovers fewer pushes on the full robot. ``default``, which the walking
 controller uses: ``algorithm1`` with ``refined`` as its fallback
 (:mod:`~jaxloco.learning.fallback`): the survival basin of ``refined``, and Algorithm 1's
-actions wherever its look-ahead is safe (docs/learning.md)."""
+actions wherever its look-ahead is safe (docs/learning.md). ``g1``, ``apollo``: ``default``
+at those robots' sizes (:mod:`~jaxloco.learning.scaled`), their walking controllers'
+defaults."""
 FORMAT_VERSION = 1
 PPO_PARAMS_FILE = "ppo_params.msgpack"
 """The file that marks a checkpoint of :mod:`jaxloco.learning.ppo` (Brax's PPO)."""
 FALLBACK_FILE = "fallback.json"
 """The file that marks a checkpoint of :mod:`jaxloco.learning.fallback`."""
+SCALED_FILE = "scaled.json"
+"""The file that marks a checkpoint of :mod:`jaxloco.learning.scaled`."""
 
 if TYPE_CHECKING:
     from jaxloco.learning.fallback import FallbackPlanner
@@ -180,6 +186,10 @@ def load_planner(
             )
         path = assets_dir() / SHIPPED_POLICIES[shipped]
     path = Path(path)
+    if (path / SCALED_FILE).exists():
+        from jaxloco.learning.scaled import load_scaled_planner
+
+        return load_scaled_planner(path)
     if (path / FALLBACK_FILE).exists():
         from jaxloco.learning.fallback import load_fallback_planner
 
@@ -204,6 +214,10 @@ def checkpoint_digest(path=None, shipped: str = "default") -> str:
     import hashlib
 
     path = Path(path) if path is not None else assets_dir() / SHIPPED_POLICIES[shipped]
+    if (path / SCALED_FILE).exists():
+        from jaxloco.learning.scaled import scaled_digest
+
+        return scaled_digest(path)
     if (path / FALLBACK_FILE).exists():
         from jaxloco.learning.fallback import fallback_digest
 

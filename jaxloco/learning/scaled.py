@@ -1,13 +1,21 @@
 """A step policy learned at one robot size, serving a robot of another size (Froude
-scaling, :mod:`jaxloco.planner.scaling`): :class:`ScaledPlanner`."""
+scaling, :mod:`jaxloco.planner.scaling`): :class:`ScaledPlanner`, and its checkpoint, a
+folder with ``scaled.json`` (the robot's scale and the reference-size checkpoint it
+wraps)."""
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
+import json
+import os
+from pathlib import Path
 
 from flax import struct
 
+from jaxloco.learning.checkpoint import SCALED_FILE, checkpoint_digest, load_planner
 from jaxloco.learning.evaluation import over_states
+from jaxloco.learning.starts import StartStates
 from jaxloco.planner import FroudeScale, PSPParams, scale_psp
 
 
@@ -47,3 +55,66 @@ def planner_at_height(planner, h: float):
         inner = planner_at_height(planner.planner, h / planner.scale.length)
         return planner.replace(planner=inner)
     return planner.replace(psp=dataclasses.replace(planner.psp, h=h))
+
+
+FORMAT_VERSION = 1
+
+
+def save_scaled_checkpoint(path, reference, scale: FroudeScale, robot: str = "") -> Path:
+    """Write a scaled checkpoint at ``path``: ``reference`` (a checkpoint folder of any kind,
+    learned at the reference size) serving a robot of ``scale`` (``robot``: its name, for
+    the record). ``reference`` is stored relative to ``path`` when it lies beside or inside
+    it (the folders move together), else absolute; returns ``path``."""
+    path = Path(path)
+    path.mkdir(parents=True, exist_ok=True)
+    reference = Path(reference).resolve()
+    load_planner(reference)  # refuse a folder that is no checkpoint now, not at load time
+    stored = (
+        os.path.relpath(reference, path.resolve())
+        if reference.is_relative_to(path.resolve().parent)
+        else str(reference)
+    )
+    meta = {
+        "format_version": FORMAT_VERSION,
+        "robot": robot,
+        "length_scale": float(scale.length),
+        "reference": stored,
+    }
+    (path / SCALED_FILE).write_text(json.dumps(meta, indent=2) + "\n")
+    return path
+
+
+def _read(path: Path) -> tuple[Path, FroudeScale, str]:
+    meta = json.loads((path / SCALED_FILE).read_text())
+    if meta.get("format_version") != FORMAT_VERSION:
+        raise ValueError(
+            f"{path / SCALED_FILE}: format {meta.get('format_version')!r}, "
+            f"expected {FORMAT_VERSION}"
+        )
+    return path / meta["reference"], FroudeScale(float(meta["length_scale"])), meta["robot"]
+
+
+def load_scaled_planner(path) -> ScaledPlanner:
+    """The :class:`ScaledPlanner` of a scaled checkpoint folder."""
+    reference, scale, _ = _read(Path(path))
+    if not reference.is_dir():
+        raise FileNotFoundError(f"{Path(path) / SCALED_FILE}: its reference {reference} is missing")
+    return ScaledPlanner(load_planner(reference), scale)
+
+
+def scaled_digest(path) -> str:
+    """A short SHA-256 of a scaled checkpoint: its scale and its reference's digest."""
+    reference, scale, _ = _read(Path(path))
+    h = hashlib.sha256(f"length_scale={scale.length!r}".encode())
+    h.update(checkpoint_digest(reference).encode())
+    return h.hexdigest()[:16]
+
+
+def scale_box(spec: StartStates, scale: FroudeScale) -> StartStates:
+    """``spec``'s apex-state box in a robot of ``scale``'s units (the basin's draw)."""
+    units = scale.state_units
+    return dataclasses.replace(
+        spec,
+        box_low=tuple(lo * u for lo, u in zip(spec.box_low, units, strict=True)),
+        box_high=tuple(hi * u for hi, u in zip(spec.box_high, units, strict=True)),
+    )

@@ -175,10 +175,11 @@ def robot_gait(
 
 
 def robot_planner(robot: RobotDescription, model: mujoco.MjModel, planner=None):
-    """``planner`` (default ``load_planner()``: learned at the reference robot's size) for
-    ``robot``'s size: wrapped in a :class:`~jaxloco.learning.scaled.ScaledPlanner` unless the
-    robot is the reference size."""
-    planner = load_planner() if planner is None else planner
+    """``planner`` for ``robot``'s size (default: the robot's shipped policy,
+    ``robot.planner``): a planner learned at the reference robot's size is wrapped in a
+    :class:`~jaxloco.learning.scaled.ScaledPlanner` unless the robot is the reference size;
+    a scaled one is taken as it is."""
+    planner = load_planner(shipped=robot.planner) if planner is None else planner
     scale = robot_scale(robot, model)
     if scale.length == 1.0 or isinstance(planner, ScaledPlanner):  # already at a size
         return planner

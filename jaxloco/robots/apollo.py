@@ -81,5 +81,6 @@ APOLLO = RobotDescription(
     ),
     keyframe="walk",
     torque_limits_in_qp=True,
+    planner="apollo",
     fall_height=0.6,
 )

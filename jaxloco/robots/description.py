@@ -103,6 +103,9 @@ class RobotDescription:
     torque_limits_in_qp: bool = False
     """Whether the walking controller keeps the legs' torques within the model's effort
     limits in its force QP by default (``WBLCConfig.torque_limits_in_qp``)."""
+    planner: str = "default"
+    """The shipped step policy its walking controller loads by default (a key of
+    :data:`jaxloco.learning.checkpoint.SHIPPED_POLICIES`)."""
     length_scale: float | None = None
     """The robot's size relative to the reference robot that the gait's and planner's
     default numbers were chosen for (Valkyrie, 1.0): the ratio of their CoM heights above
@@ -215,6 +218,18 @@ def check_model(robot: RobotDescription, model: mujoco.MjModel) -> None:
             off = [p for p in foot.points if has(site, p) and model.site(p).bodyid[0] != body_of]
             if off:
                 missing.append(f"{foot.name} foot's points {off} on the body of {foot.frame!r}")
+    if has(body, robot.base_body):
+        base = model.body(robot.base_body).id
+        for foot in robot.feet:
+            if has(site, foot.frame):
+                joints = _joints_between(model, base, int(model.site(foot.frame).bodyid[0]))
+                if joints < 6:
+                    missing.append(
+                        f"6 joints between the base and the {foot.name} foot (it has "
+                        f"{joints}: a flat foot in contact fixes 6 directions, so in single "
+                        "support the stance leg cannot also move the base's 6; e.g. no "
+                        "ankle roll)"
+                    )
     for field in ("base_frame", "torso_frame"):
         name = getattr(robot, field)
         if not has(site, name):
@@ -250,9 +265,27 @@ def check_model(robot: RobotDescription, model: mujoco.MjModel) -> None:
             missing.append(f"gear 1 on the motor of joint {name!r}")
     if missing:
         raise ValueError(
-            f"model {robot.model!r} does not fit robot {robot.name!r}; it lacks: "
+            f"model {_model_name(robot.model)!r} does not fit robot {robot.name!r}; it lacks: "
             + "; ".join(missing)
         )
+
+
+def _model_name(model: str | PackagedModel) -> str:
+    return model.name if isinstance(model, PackagedModel) else model
+
+
+def _joints_between(model: mujoco.MjModel, base: int, body: int) -> int:
+    """Hinge and slide joints on the kinematic chain from ``base`` down to ``body``."""
+    count = 0
+    while body not in (base, 0):
+        for j in range(model.body_jntadr[body], model.body_jntadr[body] + model.body_jntnum[body]):
+            if int(model.jnt_type[j]) in (
+                int(mujoco.mjtJoint.mjJNT_HINGE),
+                int(mujoco.mjtJoint.mjJNT_SLIDE),
+            ):
+                count += 1
+        body = int(model.body_parentid[body])
+    return count
 
 
 def _is_torque_motor(model: mujoco.MjModel, a: int) -> bool:

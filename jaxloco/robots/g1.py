@@ -76,5 +76,6 @@ G1 = RobotDescription(
     ),
     keyframe="walk",
     torque_limits_in_qp=True,
+    planner="g1",
     fall_height=0.45,
 )

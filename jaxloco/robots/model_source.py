@@ -58,6 +58,9 @@ class FootSites:
     frame: str
     points: tuple[str, ...]
     from_spheres: bool = False
+    positions: tuple[tuple[float, float, float], ...] = ()
+    """Where to add the ``points`` (m, body frame) on a model that has neither contact-point
+    sites nor sphere colliders; empty: existing sites or spheres."""
     ankle: tuple[str, ...] = ()
     """Two joints (pitch, roll) that a :class:`StandingKeyframe` turns until the sole is
     level: the plane of existing contact-point sites, whose own z axis is the sole's normal
@@ -99,6 +102,11 @@ class PackagedModel:
             )
         if not self.keyframe:
             raise ValueError("PackagedModel.keyframe must name the keyframe the robot stands in")
+
+    @property
+    def name(self) -> str:
+        """``folder/file``: how errors name the model."""
+        return f"{self.folder}/{self.file}"
 
     @property
     def path(self) -> Path:
@@ -164,10 +172,18 @@ def build_model(source: PackagedModel) -> mujoco.MjModel:
 
 def servos_to_motors(spec: mujoco.MjSpec) -> None:
     """Every joint actuator of ``spec`` becomes a torque motor bounded by its joint's
-    effort limit (``actuatorfrcrange``), else by its own ``forcerange``."""
+    effort limit (``actuatorfrcrange``), else by its own ``forcerange``; motors that already
+    have a control range stay as they are."""
     for actuator in spec.actuators:
         if actuator.trntype != mujoco.mjtTrn.mjTRN_JOINT:
             raise ValueError(f"actuator {actuator.name!r}: only joint actuators are converted")
+        motor = (
+            actuator.gaintype == mujoco.mjtGain.mjGAIN_FIXED
+            and actuator.biastype == mujoco.mjtBias.mjBIAS_NONE
+            and actuator.dyntype == mujoco.mjtDyn.mjDYN_NONE
+        )
+        if motor and _symmetric_bound(actuator.ctrlrange) is not None:
+            continue  # already a torque motor bounded by its control range
         joint = spec.joint(actuator.target)
         bound = _symmetric_bound(joint.actfrcrange)
         if bound is None:
@@ -253,7 +269,16 @@ def _level_quat(data: mujoco.MjData, body: int) -> np.ndarray:
 def _add_foot(spec: mujoco.MjSpec, model: mujoco.MjModel, data: mujoco.MjData, foot) -> None:
     body = model.body(foot.body).id
     rotation = data.xmat[body].reshape(3, 3)  # body -> world
-    if foot.from_spheres:
+    if foot.positions:
+        if len(foot.positions) != len(foot.points):
+            raise ValueError(
+                f"FootSites {foot.frame!r}: {len(foot.positions)} positions for "
+                f"{len(foot.points)} points"
+            )
+        points = [np.asarray(p, float) for p in foot.positions]
+        for name, pos in zip(foot.points, points, strict=True):
+            spec.body(foot.body).add_site(name=name, pos=list(pos), size=[0.005, 0, 0])
+    elif foot.from_spheres:
         spheres = [
             g
             for g in range(model.ngeom)

@@ -1,0 +1,289 @@
+"""Robots from the model package (MuJoCo Menagerie's Unitree G1 and Apptronik Apollo): the
+code edits keep the model's own limits, the added sites sit where they should, H1 is
+refused with the reason, Froude scaling keeps plans alike, and the G1 stands and walks on
+MuJoCo C."""
+
+import json
+import xml.etree.ElementTree as ET
+
+import jax
+import jax.numpy as jnp
+import mujoco
+import numpy as np
+import pytest
+
+from jaxloco.control.presets import walking_config
+from jaxloco.control.tasks import frame_quat, task_index
+from jaxloco.control.wblc import make_wblc
+from jaxloco.learning import load_planner
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES, checkpoint_digest
+from jaxloco.learning.evaluation import steps_survived
+from jaxloco.learning.scaled import (
+    ScaledPlanner,
+    load_scaled_planner,
+    save_scaled_checkpoint,
+    scale_box,
+)
+from jaxloco.learning.starts import StartStates, uniform_states
+from jaxloco.locomotion import GaitParams, make_walking_controller
+from jaxloco.locomotion.walking import robot_gait, robot_planner
+from jaxloco.planner import FroudeScale, PSPParams, plan_step, scale_psp
+from jaxloco.robots import (
+    APOLLO,
+    G1,
+    ROBOTS,
+    VALKYRIE,
+    check_model,
+    com_height,
+    effort_limits,
+    robot_scale,
+)
+from jaxloco.robots.h1 import H1
+from jaxloco.robots.model_source import package_root
+from jaxloco.runtime import assets_dir
+from jaxloco.sim import run_closed_loop
+from jaxloco.sim.scenarios import simulate_walk
+
+PACKAGED = (G1, APOLLO)
+
+
+@pytest.fixture(scope="module")
+def models():
+    return {robot.name: robot.load() for robot in PACKAGED}
+
+
+@pytest.mark.parametrize("robot", PACKAGED, ids=lambda r: r.name)
+def test_each_packaged_robot_loads_and_fits_its_description(models, robot):
+    model = models[robot.name]
+    check_model(robot, model)
+    assert ROBOTS[robot.name] is robot
+    assert model.nu == len(robot.joints) == model.nv - 6
+    assert (package_root() / robot.model.folder / "LICENSE").exists()
+
+
+def _mjcf_effort_limits(robot) -> dict[str, float]:
+    """Each joint's effort limit read from the shipped MJCF text: the joint's
+    ``actuatorfrcrange``, else its actuator's ``forcerange``."""
+    root = ET.parse(package_root() / robot.model.folder / f"{_robot_file(robot)}").getroot()
+    limits = {}
+    for joint in root.iter("joint"):
+        if "actuatorfrcrange" in joint.attrib:
+            lo, hi = (float(x) for x in joint.attrib["actuatorfrcrange"].split())
+            limits[joint.attrib["name"]] = max(abs(lo), abs(hi))
+    for actuator in root.find("actuator"):
+        joint = actuator.attrib["joint"]
+        if joint not in limits and "forcerange" in actuator.attrib:
+            lo, hi = (float(x) for x in actuator.attrib["forcerange"].split())
+            limits[joint] = max(abs(lo), abs(hi))
+    return limits
+
+
+def _robot_file(robot) -> str:
+    return {"unitree_g1": "g1.xml", "apptronik_apollo": "apptronik_apollo.xml"}[robot.model.folder]
+
+
+@pytest.mark.parametrize("robot", PACKAGED, ids=lambda r: r.name)
+def test_servos_become_torque_motors_at_the_models_own_limits(models, robot):
+    """Every actuator is a torque motor (fixed gain, no bias, gear 1) whose control range is
+    the joint's effort limit as the MJCF file states it; nothing else about the physics
+    changes (masses, joint ranges, friction loss against the file as MuJoCo reads it)."""
+    model = models[robot.name]
+    expected = _mjcf_effort_limits(robot)
+    limits = effort_limits(model)
+    for a in range(model.nu):
+        joint = model.joint(model.actuator_trnid[a, 0]).name
+        assert limits[a] == pytest.approx(expected[joint]), joint
+        assert model.actuator_gaintype[a] == mujoco.mjtGain.mjGAIN_FIXED
+        assert model.actuator_biastype[a] == mujoco.mjtBias.mjBIAS_NONE
+        assert model.actuator_gear[a, 0] == 1.0
+    shipped = mujoco.MjModel.from_xml_path(str(robot.model.path))
+    np.testing.assert_array_equal(model.body_mass, shipped.body_mass)
+    np.testing.assert_array_equal(model.jnt_range, shipped.jnt_range)
+    np.testing.assert_array_equal(model.dof_frictionloss, shipped.dof_frictionloss)
+    np.testing.assert_array_equal(model.geom_friction, shipped.geom_friction)
+    assert model.opt.timestep == (robot.model.timestep or shipped.opt.timestep)
+
+
+@pytest.mark.parametrize("robot", PACKAGED, ids=lambda r: r.name)
+def test_added_sites_stand_on_the_floor_and_are_level_in_the_keyframe(models, robot):
+    model = models[robot.name]
+    data = mujoco.MjData(model)
+    data.qpos[:] = robot.keyframe_qpos(model)
+    mujoco.mj_kinematics(model, data)
+    for foot in robot.feet:
+        points = [model.site(p).id for p in foot.points]
+        frame = model.site(foot.frame).id
+        assert np.min(data.site_xpos[points, 2]) == pytest.approx(0.0, abs=1e-9)
+        np.testing.assert_allclose(data.site_xpos[points, 2], 0.0, atol=1e-4)  # a flat sole
+        np.testing.assert_allclose(
+            data.site_xpos[frame, :2], data.site_xpos[points, :2].mean(axis=0), atol=1e-9
+        )
+        np.testing.assert_allclose(data.site_xmat[frame].reshape(3, 3), np.eye(3), atol=1e-9)
+    for name in (robot.base_frame, robot.torso_frame):
+        np.testing.assert_allclose(
+            data.site_xmat[model.site(name).id].reshape(3, 3), np.eye(3), atol=1e-9
+        )
+
+
+def test_orientation_tasks_read_a_tilted_sites_frame(models):
+    """Apollo's foot frames are rotated in their bodies: the task's orientation is the
+    site's, as MuJoCo computes it, not the body's."""
+    model = models["apollo"]
+    ctrl = make_wblc(model, walking_config(APOLLO))
+    data = mujoco.MjData(model)
+    data.qpos[:] = APOLLO.keyframe_qpos(model)
+    data.qpos[7:] += np.random.default_rng(0).normal(0, 0.1, model.nq - 7)
+    mujoco.mj_kinematics(model, data)
+    snap = ctrl.snapshot(jnp.asarray(data.qpos), jnp.zeros(model.nv))
+    spec = next(t for t in ctrl.config.tasks if t.name == "left_foot_ori")
+    index = task_index(model, spec)
+    assert index.site_quat is not None
+    expected = np.empty(4)
+    mujoco.mju_mat2Quat(expected, data.site_xmat[index.site])
+    got = np.asarray(frame_quat(snap.data, index))
+    assert min(np.abs(got - expected).max(), np.abs(got + expected).max()) < 1e-9
+
+
+def test_h1_is_refused_with_the_reason():
+    with pytest.raises(ValueError, match="6 joints between the base and the left foot \\(it has 5"):
+        H1.load()
+    assert "h1" not in ROBOTS
+
+
+def test_robot_scale_is_the_com_height_ratio(models):
+    """Valkyrie is the reference (scale 1, its CoM height the reference height); the G1 and
+    Apollo scale by their CoM heights in their keyframes."""
+    valkyrie = VALKYRIE.load()
+    assert robot_scale(VALKYRIE, valkyrie).length == 1.0
+    from jaxloco.robots.description import REFERENCE_COM_HEIGHT
+
+    assert com_height(VALKYRIE, valkyrie) == pytest.approx(REFERENCE_COM_HEIGHT, abs=1e-12)
+    for robot in PACKAGED:
+        model = models[robot.name]
+        scale = robot_scale(robot, model)
+        assert scale.length == pytest.approx(com_height(robot, model) / REFERENCE_COM_HEIGHT)
+        assert 0.5 < scale.length < 0.9
+
+
+def test_gait_numbers_scale_as_lengths_times_and_speeds():
+    base = GaitParams()
+    assert base.scaled(FroudeScale(1.0)) is base
+    s = FroudeScale(0.64)
+    g = base.scaled(s)
+    assert g.com_height == pytest.approx(0.64 * base.com_height)
+    assert g.step_y_range == pytest.approx(tuple(0.64 * x for x in base.step_y_range))
+    assert g.min_step_duration == pytest.approx(0.8 * base.min_step_duration)
+    assert g.max_apex_speed == pytest.approx(0.8 * base.max_apex_speed)
+    assert g.arm_return_rate == pytest.approx(base.arm_return_rate / 0.8)
+    assert (g.replan, g.replan_gamma, g.first_stance) == (
+        base.replan,
+        base.replan_gamma,
+        base.first_stance,
+    )
+    with pytest.raises(ValueError, match="FroudeScale.length must be > 0"):
+        FroudeScale(0.0)
+
+
+def test_a_scaled_plan_is_the_reference_plan_in_scaled_units():
+    """Froude similarity (float64): the PSP's plan at size L from the scaled state and the
+    scaled action is the reference plan, its lengths times L and its times times sqrt(L)."""
+    psp, scale = PSPParams(), FroudeScale(0.63)
+    small = scale_psp(psp, scale)
+    state = jnp.array([0.06, 0.25, 0.1])
+    action = jnp.array([0.3, 0.3, -0.05])
+    ref = plan_step(state, action, psp)
+    got = plan_step(scale.from_reference(state), scale.from_reference(action), small)
+    np.testing.assert_allclose(got.p_y, ref.p_y * scale.length, rtol=1e-10)
+    np.testing.assert_allclose(got.t_switch, ref.t_switch * scale.time, rtol=1e-10)
+    np.testing.assert_allclose(got.t_apex, ref.t_apex * scale.time, rtol=1e-10)
+    np.testing.assert_allclose(
+        got.next_state, scale.from_reference(ref.next_state), rtol=1e-9, atol=1e-12
+    )
+    np.testing.assert_allclose(got.reward, ref.reward * scale.length, rtol=1e-9)
+    assert bool(got.terminal) == bool(ref.terminal)
+
+
+def test_a_scaled_policy_survives_as_far_as_the_reference_on_the_scaled_box():
+    planner = load_planner(shipped="algorithm1")
+    scale = FroudeScale(0.63)
+    scaled = ScaledPlanner(planner, scale)
+    spec = StartStates()
+    states = uniform_states(jax.random.PRNGKey(5), 512, spec)
+    ref = steps_survived(planner.policy, states, planner.psp, 20)
+    box = scale_box(spec, scale)
+    small = states * jnp.asarray(scale.state_units)
+    assert np.all(np.asarray(small) >= np.asarray(box.box_low) - 1e-12)
+    got = steps_survived(scaled.policy, small, scaled.psp, 20)
+    assert np.mean(np.asarray(got) == np.asarray(ref)) > 0.99  # float rounding at the edges
+
+
+def test_the_shipped_robot_policies_are_the_default_at_the_robots_sizes(models, tmp_path):
+    for robot in PACKAGED:
+        assert robot.planner == robot.name and robot.name in SHIPPED_POLICIES
+        planner = load_planner(shipped=robot.name)
+        assert isinstance(planner, ScaledPlanner)
+        assert planner.scale.length == pytest.approx(robot_scale(robot, models[robot.name]).length)
+        assert robot_planner(robot, models[robot.name]).scale == planner.scale
+    meta = json.loads((assets_dir() / SHIPPED_POLICIES["g1"] / "scaled.json").read_text())
+    assert meta["reference"] == "../rl_psp_fallback"
+    # A saved scaled checkpoint loads back, and its digest follows its scale.
+    path = save_scaled_checkpoint(
+        tmp_path / "g1", assets_dir() / SHIPPED_POLICIES["algorithm1"], FroudeScale(0.5), "g1"
+    )
+    back = load_scaled_planner(path)
+    assert back.scale == FroudeScale(0.5)
+    other = save_scaled_checkpoint(
+        tmp_path / "other", assets_dir() / SHIPPED_POLICIES["algorithm1"], FroudeScale(0.6)
+    )
+    assert checkpoint_digest(path) != checkpoint_digest(other)
+    with pytest.raises(FileNotFoundError):
+        save_scaled_checkpoint(tmp_path / "bad", tmp_path / "nothing", FroudeScale(0.5))
+
+
+def test_g1_stands_under_wblc_at_its_limits(models):
+    """One second (500 ticks) standing in the walking hierarchy, torque rows on, on
+    MuJoCo C: the CoM stays within 2 mm, no relaxed friction cone, no torque over the G1's
+    limits."""
+    model = models["g1"]
+    ctrl = make_wblc(model, walking_config(G1))
+    assert ctrl.config.torque_limits_in_qp
+    q0 = jnp.asarray(G1.keyframe_qpos(model), jnp.float32)
+    refs = jax.jit(ctrl.hold_references)(q0)
+    gains = ctrl.default_gains()
+
+    @jax.jit
+    def tick(q, v, prev):
+        out = ctrl(q, v, refs, jnp.ones(2, jnp.float32), gains, prev)
+        dg = out.diagnostics
+        return out.torques, out.qp_state, {"com": dg.task_errors["com"], "relaxed": dg.qp_relaxed}
+
+    data = mujoco.MjData(model)
+    data.qpos[:] = G1.keyframe_qpos(model)
+    mujoco.mj_forward(model, data)
+    log, _ = run_closed_loop(
+        model,
+        data,
+        lambda t, q, v, p: tick(jnp.asarray(q, jnp.float32), jnp.asarray(v, jnp.float32), p),
+        ctrl.initial_qp_state(jnp.float32),
+        500,
+        stop=lambda d: d.qpos[2] < G1.fall_height,
+    )
+    assert not log.fell and len(log.time) == 500
+    assert np.linalg.norm(log.outputs["com"], axis=1).max() < 0.002
+    assert not log.outputs["relaxed"].any()
+    assert np.all(np.abs(log.ctrl) <= effort_limits(model) + 1e-6)
+
+
+def test_g1_walks_three_steps_on_mujoco_c(models):
+    """From its keyframe, at the G1's own effort limits, with the Froude-scaled gait and its
+    shipped step policy: three steps begun, no fall, no failed plan."""
+    model = models["g1"]
+    ctrl = make_walking_controller(model, robot=G1)
+    assert ctrl.gait_params == robot_gait(G1, model)
+    assert ctrl.psp.h == pytest.approx(ctrl.gait_params.com_height)
+    run = simulate_walk(model, ctrl, 4.0, max_steps=3)
+    assert not run.fell and run.steps_taken > 3
+    o = run.log.outputs
+    assert int(o["failed_plans"][-1]) == 0
+    feet = np.asarray(o["feet"])
+    assert feet[-1, :, 0].max() > 0.2  # it went forward
