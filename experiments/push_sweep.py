@@ -46,6 +46,7 @@ from jaxloco.control.force_qp import ForceQPParams
 from jaxloco.control.gains import apply_gains_file, apply_gait_file
 from jaxloco.control.presets import CLOSED_LOOP_QP, walking_config
 from jaxloco.locomotion import GaitParams
+from jaxloco.robots import robot_by_name
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep import SweepSpec, run_sweep, write_report
 from jaxloco.sweep.limits import FINE_SEARCH, LimitSearch, run_limit_search
@@ -158,6 +159,13 @@ def controller_settings(cfg) -> dict:
     }
 
 
+def _robot_mass(name: str) -> float | None:
+    """The robot's mass (kg) for the report's velocity terms; None for Valkyrie, whose
+    report stays in the paper's terms (52 N s)."""
+    robot = robot_by_name(name)
+    return None if robot.length_scale == 1.0 else float(robot.load().body_subtreemass[0])
+
+
 def run(cfg, out_dir: Path):
     """The limit search or the grid sweep into ``out_dir`` (resumed if it holds one), and
     its report."""
@@ -175,7 +183,8 @@ def run(cfg, out_dir: Path):
         if cfg.backend != "c":
             raise ValueError("task=limits runs on the C backend; use backend=c")
         result = run_limit_search(to_params(LimitSearch, cfg.search), out_dir, **common)
-        return {"task": "limits", "report": write_limits_report(result, out_dir, dpi=cfg.dpi)}
+        report = write_limits_report(result, out_dir, dpi=cfg.dpi, mass=_robot_mass(cfg.robot))
+        return {"task": "limits", "report": report}
     result = run_sweep(
         to_params(SweepSpec, cfg.sweep),
         out_dir,
@@ -195,7 +204,8 @@ def main(cfg) -> None:
             print(
                 f"{name}: largest recovered impulse median {v['median_limit_Ns']:g} N s "
                 f"(min {v['min_limit_Ns']:g}, max {v['max_limit_Ns']:g}); "
-                f"{v['cells_at_least_paper']}/{v['cells']} cells >= 52 N s"
+                f"{v['cells_at_least_paper']}/{v['cells']} cells >= "
+                f"{summary['paper_impulse_Ns']:g} N s (the paper's push)"
             )
         print(f"report: {out_dir / 'summary.md'} (plots: limits_polar.png, limits_heatmap.png)")
         return

@@ -21,6 +21,7 @@ defines the decorated function.)
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -32,6 +33,7 @@ from omegaconf import OmegaConf
 from jaxloco.locomotion.walking import robot_gait
 from jaxloco.robots import robot_by_name
 from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, watchdog
+from jaxloco.sweep.limits import PAPER_MASS
 
 
 @dataclass
@@ -48,9 +50,8 @@ class RunConfig:
 ROBOT_DEFAULTS = ("torque_limit", "iterations", "ls_iterations", "fall_height", "impulse_high")
 """The config values that default to the config's ``robot``'s (:func:`robot_default`)."""
 
-REFERENCE_MASS = 135.9
-"""Valkyrie's mass (kg): the limit search's default impulse bracket (0-128 N s) is for it."""
 REFERENCE_IMPULSE_HIGH = 128.0
+"""The limit search's default top impulse (N s), chosen for Valkyrie (``PAPER_MASS``)."""
 
 
 def robot_default(field: str) -> str:
@@ -58,7 +59,7 @@ def robot_default(field: str) -> str:
     config is read: the simulation's ``torque_limit``, solver ``iterations`` and
     ``ls_iterations`` (:class:`~jaxloco.robots.RobotDescription`), the ``fall_height`` of its
     base, and ``impulse_high``, the limit search's top impulse (N s): 128 N s for Valkyrie,
-    the same velocity change (impulse / mass) for another robot."""
+    the same velocity change (impulse / mass) for another robot, rounded up to 16 N s."""
     if field not in ROBOT_DEFAULTS:
         raise ValueError(f"robot_default: field must be one of {ROBOT_DEFAULTS}; got {field!r}")
     return "${jaxloco_robot:${robot}," + field + "}"
@@ -76,7 +77,8 @@ def _robot_value(name: str, field: str):
         if robot.length_scale == 1.0:  # the reference robot: the bracket as chosen
             return REFERENCE_IMPULSE_HIGH
         mass = float(robot.load().body_subtreemass[0])
-        return round(REFERENCE_IMPULSE_HIGH * mass / REFERENCE_MASS, 1)
+        # The same velocity change, up to a multiple of 16 N s: round bisection steps.
+        return 16.0 * math.ceil(REFERENCE_IMPULSE_HIGH * mass / PAPER_MASS / 16.0)
     raise ValueError(f"robot_default: field must be one of {ROBOT_DEFAULTS}; got {field!r}")
 
 

@@ -47,6 +47,15 @@ from jaxloco.sweep.spec import PushTable
 
 PAPER_IMPULSE = 52.0
 """The paper's push: 520 N for 0.1 s (N s)."""
+PAPER_MASS = 135.9
+"""Valkyrie's mass (kg): the paper's push, 520 N for 0.1 s, is a velocity change of
+``PAPER_IMPULSE / PAPER_MASS`` = 0.383 m/s."""
+
+
+def paper_impulse_for(mass: float | None) -> float:
+    """The paper's push for a robot of ``mass`` kg: the same velocity change (N s, to 0.01;
+    52 N s for Valkyrie or when ``mass`` is None)."""
+    return PAPER_IMPULSE if mass is None else round(PAPER_IMPULSE * mass / PAPER_MASS, 2)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -254,9 +263,12 @@ class LimitResult:
         """(C,) no impulse tried was recovered: the limit lies under the first one tried."""
         return ~self.brackets.lo_tested
 
-    def summary(self) -> dict:
-        """Every number of the search, JSON-ready."""
+    def summary(self, mass: float | None = None) -> dict:
+        """Every number of the search, JSON-ready. With the robot's ``mass`` (kg) the limits
+        are also given as velocity changes (impulse / mass, m/s), and the paper's push is
+        the same velocity change as the paper's 52 N s on Valkyrie (:func:`paper_impulse_for`)."""
         s = self.search
+        paper = paper_impulse_for(mass)
         rows = []
         for k, (d, p, t, r) in enumerate(self.cells):
             rows.append(
@@ -269,7 +281,7 @@ class LimitResult:
                     "bracket_Ns": [float(self.brackets.lo[k]), float(self.brackets.hi[k])],
                     "censored_above": bool(self.censored_above[k]),
                     "censored_below": bool(self.censored_below[k]),
-                    "at_least_paper": bool(self.limit[k] >= PAPER_IMPULSE),
+                    "at_least_paper": bool(self.limit[k] >= paper),
                     "tested_Ns": self.tested[: self.rounds_done, k].tolist(),
                     "recovered_replicas": self.recovered[: self.rounds_done, k].tolist(),
                     "replicas_run": self.runs[: self.rounds_done, k].tolist(),
@@ -291,14 +303,23 @@ class LimitResult:
                     "median_limit_Ns": float(np.median(lim)),
                     "min_limit_Ns": float(np.min(lim)),
                     "max_limit_Ns": float(np.max(lim)),
-                    "cells_at_least_paper": int(np.sum(lim >= PAPER_IMPULSE)),
+                    "cells_at_least_paper": int(np.sum(lim >= paper)),
                     "cells": len(sel),
                     "worst_phase_limit_per_direction_Ns": per_dir,
                 }
+                if mass is not None:
+                    for key in ("median", "min", "max"):
+                        v_ns = variants[name][f"{key}_limit_Ns"]
+                        variants[name][f"{key}_limit_mps"] = v_ns / mass
+        if mass is not None:
+            for row in rows:
+                row["limit_mps"] = row["limit_Ns"] / mass
+        extra = {} if mass is None else {"robot_mass_kg": mass, "paper_velocity_mps": paper / mass}
         return to_jsonable(
             {
                 "search": dataclasses.asdict(s),
-                "paper_impulse_Ns": PAPER_IMPULSE,
+                **extra,
+                "paper_impulse_Ns": paper,
                 "resolution_Ns": s.resolution(),
                 "rounds_done": self.rounds_done,
                 "pushes_run": int(self.runs[: self.rounds_done].sum()),

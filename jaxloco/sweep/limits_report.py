@@ -17,7 +17,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxloco.runtime import write_json
-from jaxloco.sweep.limits import PAPER_IMPULSE, LimitResult
+from jaxloco.sweep.limits import LimitResult, paper_impulse_for
 
 
 def _variants(result: LimitResult):
@@ -44,13 +44,13 @@ def _grid(result: LimitResult, sel):
     return grid, censored
 
 
-def plot_limits_polar(result: LimitResult) -> Figure:
+def plot_limits_polar(result: LimitResult, paper: float = paper_impulse_for(None)) -> Figure:
     variants = _variants(result)
     fig = Figure(figsize=(4.3 * len(variants), 4.6), constrained_layout=True)
     dirs = np.radians(np.asarray(result.search.directions_deg, float))
     order = np.argsort(dirs)
     theta = np.r_[dirs[order], dirs[order][:1] + 2 * np.pi]
-    top = max(result.search.impulse_range[1], PAPER_IMPULSE) * 1.05
+    top = max(result.search.impulse_range[1], paper) * 1.05
     for n, (name, sel) in enumerate(variants):
         ax = fig.add_subplot(1, len(variants), n + 1, projection="polar")
         grid, _ = _grid(result, sel)
@@ -58,7 +58,8 @@ def plot_limits_polar(result: LimitResult) -> Figure:
             r = grid[i][order]
             ax.plot(theta, np.r_[r, r[:1]], "o-", ms=3, lw=1.2, label=f"phase {phase:g}")
         circle = np.linspace(0, 2 * np.pi, 200)
-        ax.plot(circle, np.full_like(circle, PAPER_IMPULSE), "k--", lw=1, label="paper, 52 N s")
+        label = f"paper's push, {paper:g} N s"
+        ax.plot(circle, np.full_like(circle, paper), "k--", lw=1, label=label)
         ax.set_ylim(0, top)
         ax.set_theta_zero_location("N")  # forward (0 deg) up
         ax.set_theta_direction(1)  # counter-clockwise: 90 deg (left) to the left
@@ -99,13 +100,34 @@ def _markdown(summary: dict) -> str:
         f"left the decision open), recovered when >= {s['min_recovered']} recover; "
         f"{summary['pushes_run']} pushes. The paper's push: {summary['paper_impulse_Ns']:g} N s.",
         "",
-        "| variant | median limit (N s) | min | max | cells >= 52 N s |",
-        "|---|---|---|---|---|",
     ]
+    paper = summary["paper_impulse_Ns"]
+    mass = summary.get("robot_mass_kg")
+    if mass is None:
+        lines += [
+            f"| variant | median limit (N s) | min | max | cells >= {paper:g} N s |",
+            "|---|---|---|---|---|",
+        ]
+    else:
+        lines[2] += (
+            f" On this robot ({mass:.1f} kg) that is the paper's velocity change, "
+            f"{summary['paper_velocity_mps']:.3f} m/s (52 N s on Valkyrie's 135.9 kg)."
+        )
+        lines += [
+            f"| variant | median limit (N s) | min | max | median (m/s) | min | max "
+            f"| cells >= {paper:g} N s |",
+            "|---|---|---|---|---|---|---|---|",
+        ]
     for name, v in summary["variants"].items():
+        speeds = (
+            ""
+            if mass is None
+            else f"{v['median_limit_mps']:.3f} | {v['min_limit_mps']:.3f} | "
+            f"{v['max_limit_mps']:.3f} | "
+        )
         lines.append(
             f"| {name} | {v['median_limit_Ns']:g} | {v['min_limit_Ns']:g} | "
-            f"{v['max_limit_Ns']:g} | {v['cells_at_least_paper']}/{v['cells']} |"
+            f"{v['max_limit_Ns']:g} | {speeds}{v['cells_at_least_paper']}/{v['cells']} |"
         )
     for name, v in summary["variants"].items():
         lines += ["", f"## {name}: worst phase's limit per direction (N s)", ""]
@@ -123,13 +145,19 @@ def _markdown(summary: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_limits_report(result: LimitResult, out_dir, dpi: int = 120) -> dict:
-    """Write the report files (see the module doc) into ``out_dir``; returns the summary."""
+def write_limits_report(
+    result: LimitResult, out_dir, dpi: int = 120, mass: float | None = None
+) -> dict:
+    """Write the report files (see the module doc) into ``out_dir``; returns the summary.
+    ``mass``: the robot's (kg), for the limits as velocity changes and the paper's push
+    at the robot's mass (None: Valkyrie's numbers, 52 N s)."""
     out = Path(out_dir)
-    summary = result.summary()
+    summary = result.summary(mass)
     write_json(out / "summary.json", summary)
     (out / "summary.md").write_text(_markdown(summary))
-    plot_limits_polar(result).savefig(out / "limits_polar.png", dpi=dpi)
+    plot_limits_polar(result, summary["paper_impulse_Ns"]).savefig(
+        out / "limits_polar.png", dpi=dpi
+    )
     plot_limits_heatmap(result).savefig(out / "limits_heatmap.png", dpi=dpi)
     return summary
 
