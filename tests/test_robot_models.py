@@ -247,13 +247,13 @@ def test_g1_stands_under_wblc_at_its_limits(models):
     model = models["g1"]
     ctrl = make_wblc(model, walking_config(G1))
     assert ctrl.config.torque_limits_in_qp
-    q0 = jnp.asarray(G1.keyframe_qpos(model), jnp.float32)
+    q0 = jnp.asarray(G1.keyframe_qpos(model))
     refs = jax.jit(ctrl.hold_references)(q0)
     gains = ctrl.default_gains()
 
     @jax.jit
     def tick(q, v, prev):
-        out = ctrl(q, v, refs, jnp.ones(2, jnp.float32), gains, prev)
+        out = ctrl(q, v, refs, jnp.ones(2), gains, prev)
         dg = out.diagnostics
         return out.torques, out.qp_state, {"com": dg.task_errors["com"], "relaxed": dg.qp_relaxed}
 
@@ -263,8 +263,8 @@ def test_g1_stands_under_wblc_at_its_limits(models):
     log, _ = run_closed_loop(
         model,
         data,
-        lambda t, q, v, p: tick(jnp.asarray(q, jnp.float32), jnp.asarray(v, jnp.float32), p),
-        ctrl.initial_qp_state(jnp.float32),
+        lambda t, q, v, p: tick(jnp.asarray(q), jnp.asarray(v), p),
+        ctrl.initial_qp_state(),
         500,
         stop=lambda d: d.qpos[2] < G1.fall_height,
     )

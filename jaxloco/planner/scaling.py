@@ -37,9 +37,10 @@ _VELOCITIES = (
     "yd_apex_next_max",
 )
 _TIMES = ("t_switch_min", "t_apex_min")
-# The reward (Eq. 3) is a sum of squared velocities and lengths: it scales by L, and so must
-# the terminal reward for the same trade-off.
+# The reward (Eq. 3) is in squared velocities: its lateral-step weight has units 1/s^2 (it
+# multiplies a squared length), and the whole reward, the terminal one too, scales by L.
 _REWARDS = ("terminal_reward",)
+_PER_TIME_SQUARED = ("reward_weight_p_y",)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -90,6 +91,7 @@ def scale_psp(psp: PSPParams, scale: FroudeScale) -> PSPParams:
         **dict.fromkeys(_VELOCITIES, scale.velocity),
         **dict.fromkeys(_TIMES, scale.time),
         **dict.fromkeys(_REWARDS, scale.length),
+        **dict.fromkeys(_PER_TIME_SQUARED, 1.0 / scale.length),
     }
     return dataclasses.replace(
         psp, **{name: getattr(psp, name) * f for name, f in factors.items()}

@@ -48,13 +48,13 @@ from jaxloco.sweep.spec import PushTable
 PAPER_IMPULSE = 52.0
 """The paper's push: 520 N for 0.1 s (N s)."""
 PAPER_MASS = 135.9
-"""Valkyrie's mass (kg): the paper's push, 520 N for 0.1 s, is a velocity change of
+"""The paper's robot's mass (kg): its push, 520 N for 0.1 s, is a velocity change of
 ``PAPER_IMPULSE / PAPER_MASS`` = 0.383 m/s."""
 
 
 def paper_impulse_for(mass: float | None) -> float:
     """The paper's push for a robot of ``mass`` kg: the same velocity change (N s, to 0.01;
-    52 N s for Valkyrie or when ``mass`` is None)."""
+    52 N s for the paper's robot or when ``mass`` is None)."""
     return PAPER_IMPULSE if mass is None else round(PAPER_IMPULSE * mass / PAPER_MASS, 2)
 
 
@@ -266,7 +266,7 @@ class LimitResult:
     def summary(self, mass: float | None = None) -> dict:
         """Every number of the search, JSON-ready. With the robot's ``mass`` (kg) the limits
         are also given as velocity changes (impulse / mass, m/s), and the paper's push is
-        the same velocity change as the paper's 52 N s on Valkyrie (:func:`paper_impulse_for`)."""
+        the same velocity change as the paper's 52 N s (:func:`paper_impulse_for`)."""
         s = self.search
         paper = paper_impulse_for(mass)
         rows = []

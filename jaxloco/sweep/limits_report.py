@@ -111,7 +111,7 @@ def _markdown(summary: dict) -> str:
     else:
         lines[2] += (
             f" On this robot ({mass:.1f} kg) that is the paper's velocity change, "
-            f"{summary['paper_velocity_mps']:.3f} m/s (52 N s on Valkyrie's 135.9 kg)."
+            f"{summary['paper_velocity_mps']:.3f} m/s (52 N s on the paper's 135.9 kg robot)."
         )
         lines += [
             f"| variant | median limit (N s) | min | max | median (m/s) | min | max "
@@ -150,7 +150,7 @@ def write_limits_report(
 ) -> dict:
     """Write the report files (see the module doc) into ``out_dir``; returns the summary.
     ``mass``: the robot's (kg), for the limits as velocity changes and the paper's push
-    at the robot's mass (None: Valkyrie's numbers, 52 N s)."""
+    at the robot's mass (None: the paper's robot's numbers, 52 N s)."""
     out = Path(out_dir)
     summary = result.summary(mass)
     write_json(out / "summary.json", summary)
