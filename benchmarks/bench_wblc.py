@@ -1,7 +1,8 @@
 """WBLC per control tick on Valkyrie: latency, batched throughput, a profile by stage, the
 force QP's accuracy against quadprog by iteration count, what keeping the legs within
 their effort limits in the force QP costs (``torque_limits_in_qp``, interleaved with the
-paper's WBLC), and PlaCo's C++ whole-body QP.
+paper's WBLC), a row per shipped robot (Valkyrie, Unitree G1, Apptronik Apollo: one call and
+batch 64, each side by side with PlaCo), and PlaCo's C++ whole-body QP.
 
     python benchmarks/bench_wblc.py [--json PATH] [--quick]
 
@@ -54,6 +55,7 @@ from jaxloco.control import wblc as wblc_module  # noqa: E402
 from jaxloco.control.presets import walking_config  # noqa: E402
 from jaxloco.control.wblc import make_wblc  # noqa: E402
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie  # noqa: E402
+from jaxloco.robots import ROBOTS  # noqa: E402
 from jaxloco.runtime import watchdog  # noqa: E402
 
 SWING = ("left_foot_ori", "right_foot_ori", "left_foot_pos", "right_foot_pos")
@@ -156,6 +158,54 @@ def torque_limits_cost(model, refs, q, batch: int, rounds: int) -> dict:
         compile_s=compile_s,
         rounds=rounds,
     )
+
+
+def robot_rows(peer, batch: int, repeats: int, rounds: int) -> list[dict]:
+    """Per shipped robot: the walking WBLC as its walking controller builds it (the G1's
+    and Apollo's with torque rows in the force QP), standing in its keyframe: one jitted
+    call, and the batch-``batch`` tick interleaved with PlaCo's tick when installed."""
+    rows = []
+    contact = jnp.ones(2, jnp.float32)
+    for robot in ROBOTS.values():
+        model = robot.load()
+        c = make_wblc(model, walking_config(robot))
+        q = jnp.asarray(robot.keyframe_qpos(model), jnp.float32)
+        refs = c.hold_references(q)
+        for name in SWING:
+            refs[name] = refs[name].replace(weight=jnp.zeros((), jnp.float32))
+        prev = c.initial_qp_state(jnp.float32)
+        v = jnp.asarray(np.random.default_rng(0).normal(0, 0.1, model.nv), jnp.float32)
+        one = jax.jit(lambda q, v, p, c=c, refs=refs: c(q, v, refs, contact, previous=p))
+        comp1, _ = compile_seconds(one, q, v, prev)
+        t1 = time_calls(one, q, v, prev, repeats=repeats, inner=20)
+        qb = jnp.broadcast_to(q, (batch, model.nq))
+        vb = jnp.asarray(np.random.default_rng(1).normal(0, 0.1, (batch, model.nv)), jnp.float32)
+        pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
+        batched = jax.jit(
+            jax.vmap(lambda q, v, p, c=c, refs=refs: c(q, v, refs, contact, previous=p))
+        )
+        comp_b, compiled = compile_seconds(batched, qb, vb, pb)
+        row = dict(
+            robot=robot.name,
+            nv=model.nv,
+            contact_points=len(c.point_sites),
+            torque_rows=c.config.torque_limits_in_qp,
+            single_us=t1["median_s"] * 1e6,
+            single_compile_s=comp1,
+            batch_compile_s=comp_b,
+        )
+        if peer is not None:
+            duel = head_to_head(compiled, (qb, vb, pb), batch, peer, rounds)
+            row.update(
+                batch_us=duel["ours_per_robot_tick_us"],
+                peer_us=duel["peer_per_tick_us"],
+                batch_over_peer=duel["median_ratio"],
+            )
+        else:
+            tb = time_calls(compiled, qb, vb, pb, repeats=3 * repeats)
+            row.update(batch_us=tb["median_s"] / batch * 1e6)
+        rows.append(row)
+    return rows
 
 
 def ablation_rows(ctrl, refs, q, batch: int, repeats: int) -> list[dict]:
@@ -399,6 +449,7 @@ def main():
             fn, fn_args = batched_calls[64]
             duel = head_to_head(fn, fn_args, 64, peer, 41 if args.quick else 101)
         limits_cost = torque_limits_cost(model, refs, q, 64, 21 if args.quick else 61)
+        per_robot = robot_rows(peer, 64, repeats, 21 if args.quick else 61)
         ablation = ablation_rows(ctrl, refs, q, 64, repeats)
         accuracy = qp_accuracy_table(200 if args.quick else 1000)
     base = rows[0]["per_tick_us"]
@@ -461,6 +512,28 @@ def main():
             ],
         )
     )
+    robot_columns = [
+        ("robot", "robot", "s"),
+        ("nv", "nv", "d"),
+        ("contact_points", "contact points", "d"),
+        ("torque_rows", "torque rows", "s"),
+        ("single_us", "one call us", ".1f"),
+        ("batch_us", "batch 64 us/robot-tick", ".1f"),
+        ("single_compile_s", "compile s (one call)", ".1f"),
+    ]
+    if peer is not None:
+        robot_columns += [
+            ("peer_us", "PlaCo us/tick", ".1f"),
+            ("batch_over_peer", "batch 64 / PlaCo (median per round)", ".3f"),
+        ]
+    tables.append(
+        print_table(
+            "Per robot: the walking WBLC as each robot's walking controller builds it "
+            "(standing in its keyframe, float32)",
+            [{**r, "torque_rows": "on" if r["torque_rows"] else "off"} for r in per_robot],
+            robot_columns,
+        )
+    )
     tables.append(
         print_table(
             "Force QP vs quadprog (float64), by ADMM iterations",
@@ -485,6 +558,16 @@ def main():
                 "x",
             )
         )
+    g1 = next((r for r in per_robot if r["robot"] == "g1"), None)
+    if peer is not None and g1 is not None:
+        targets.append(
+            target(
+                "G1 (torque rows on), vmap batch 64, per robot-tick, over PlaCo's tick",
+                g1["batch_over_peer"],
+                1.0,
+                "x",
+            )
+        )
     write_json(
         args.json,
         "bench_wblc",
@@ -494,6 +577,7 @@ def main():
             "ablation": ablation,
             "qp_accuracy": accuracy,
             "torque_limits_cost": limits_cost,
+            "per_robot": per_robot,
             "peer": None if peer is None else peer[0],
             "side_by_side": duel,
             "pinned_core": core,

@@ -4,6 +4,8 @@ refused with the reason, Froude scaling keeps plans alike, and the G1 stands and
 MuJoCo C."""
 
 import json
+import subprocess
+import sys
 import xml.etree.ElementTree as ET
 
 import jax
@@ -11,6 +13,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 import pytest
+from cli_helpers import run_cli
 
 from jaxloco.control.presets import walking_config
 from jaxloco.control.tasks import frame_quat, task_index
@@ -134,7 +137,7 @@ def test_orientation_tasks_read_a_tilted_sites_frame(models):
     data.qpos[:] = APOLLO.keyframe_qpos(model)
     data.qpos[7:] += np.random.default_rng(0).normal(0, 0.1, model.nq - 7)
     mujoco.mj_kinematics(model, data)
-    snap = ctrl.snapshot(jnp.asarray(data.qpos), jnp.zeros(model.nv))
+    snap = jax.jit(ctrl.snapshot)(jnp.asarray(data.qpos), jnp.zeros(model.nv))
     spec = next(t for t in ctrl.config.tasks if t.name == "left_foot_ori")
     index = task_index(model, spec)
     assert index.site_quat is not None
@@ -287,3 +290,88 @@ def test_g1_walks_three_steps_on_mujoco_c(models):
     assert int(o["failed_plans"][-1]) == 0
     feet = np.asarray(o["feet"])
     assert feet[-1, :, 0].max() > 0.2  # it went forward
+
+
+def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
+    """`jaxloco push-sweep robot=g1`: one cell, one round, one replica; the G1's defaults
+    follow the robot (its effort limits, MuJoCo's solver, its fall height, a bracket of the
+    same velocity change as Valkyrie's 0-128 N s) and the report gives the limit in m/s
+    against the paper's push at the G1's mass."""
+    args = [
+        "push-sweep",
+        "robot=g1",
+        "search.directions_deg=[90]",
+        "search.phases=[0.5]",
+        "search.replan=[true]",
+        "search.rounds=1",
+        "search.replicas=1",
+        "search.min_recovered=1",
+        "workers=1",
+    ]
+    proc = run_cli(args, tmp_path, timeout=900)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    run = tmp_path / "run"
+    summary = json.loads((run / "summary.json").read_text())
+    mass = summary["robot_mass_kg"]
+    assert mass == pytest.approx(33.34, abs=0.01)
+    assert summary["paper_impulse_Ns"] == pytest.approx(52.0 * mass / 135.9, abs=0.01)
+    assert summary["search"]["impulse_range"] == [0.0, 32.0]
+    assert summary["search"]["fall_height"] == G1.fall_height
+    (cell,) = summary["cells"]
+    assert cell["tested_Ns"] == [16.0]
+    assert cell["limit_mps"] == pytest.approx(cell["limit_Ns"] / mass)
+    manifest = json.loads((run / "round_00" / "manifest.json").read_text())
+    assert manifest["settings"]["robot"] == "g1"
+    physics = manifest["settings"]["physics"]
+    assert (physics["iterations"], physics["ls_iterations"]) == (100, 50)
+    assert physics["torque_limit"] == "model"
+    assert "m/s" in (run / "summary.md").read_text()
+
+
+EXPECTED_DEFAULTS = {
+    "valkyrie": {"torque_limit": 500.0, "iterations": 2, "ls_iterations": 4,
+                 "fall_height": 0.7, "impulse_range": [0.0, 128.0]},
+    "g1": {"torque_limit": "model", "iterations": 100, "ls_iterations": 50,
+           "fall_height": 0.45, "impulse_range": [0.0, 32.0]},
+    "apollo": {"torque_limit": "model", "iterations": 100, "ls_iterations": 50,
+               "fall_height": 0.6, "impulse_range": [0.0, 80.0]},
+}  # fmt: skip
+
+
+def test_robot_defaults_of_the_experiment_configs():
+    """The values configs take from their ``robot``: Valkyrie's stay the paper's (what `make
+    run` searches with); the others get their own limits, MuJoCo's solver, their fall height
+    and a bracket of the same velocity change as Valkyrie's 0-128 N s."""
+    from jaxloco.app import _robot_value
+
+    for robot, expected in EXPECTED_DEFAULTS.items():
+        got = {f: _robot_value(robot, f) for f in expected if f != "impulse_range"}
+        got["impulse_range"] = [0.0, _robot_value(robot, "impulse_high")]
+        assert got == expected, robot
+    with pytest.raises(ValueError, match="robot: one of"):
+        _robot_value("nao", "fall_height")
+
+
+@pytest.mark.parametrize("robot", ["valkyrie", "g1"])
+def test_push_sweep_config_resolves_the_robots_defaults(tmp_path, robot):
+    """`jaxloco push-sweep robot=... --cfg job --resolve`: the defaults above, in the
+    search, the grid sweep and the physics nodes."""
+    import yaml
+
+    proc = subprocess.run(
+        [sys.executable, "-m", "jaxloco.cli", "push-sweep", f"robot={robot}", "--cfg", "job",
+         "--resolve"],
+        cwd=tmp_path, capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    cfg = yaml.safe_load(proc.stdout)
+    physics, search = cfg["physics"], cfg["search"]
+    got = {
+        "torque_limit": physics["torque_limit"],
+        "iterations": physics["iterations"],
+        "ls_iterations": physics["ls_iterations"],
+        "fall_height": search["fall_height"],
+        "impulse_range": search["impulse_range"],
+    }
+    assert got == EXPECTED_DEFAULTS[robot]
+    assert cfg["sweep"]["fall_height"] == EXPECTED_DEFAULTS[robot]["fall_height"]

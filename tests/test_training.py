@@ -147,7 +147,8 @@ def test_loading_errors_are_clear(tmp_path):
     with pytest.raises(FileNotFoundError, match="no planner checkpoint"):
         load_planner(tmp_path / "nothing")
     with pytest.raises(
-        ValueError, match=r"shipped must be one of \['algorithm1', 'default', 'refined'\]"
+        ValueError,
+        match=r"shipped must be one of \['algorithm1', 'apollo', 'default', 'g1', 'refined'\]",
     ):
         load_planner(shipped="best")
     with pytest.raises(ValueError, match=r"apex states must have shape \(\.\.\., 3\)"):
