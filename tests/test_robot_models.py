@@ -3,6 +3,7 @@ code edits keep the model's own limits, the added sites sit where they should, H
 refused with the reason, Froude scaling keeps plans alike, and the G1 stands and walks on
 MuJoCo C."""
 
+import dataclasses
 import json
 import subprocess
 import sys
@@ -163,9 +164,16 @@ def test_robot_scale_is_the_com_height_ratio(models):
     assert com_height(VALKYRIE, valkyrie) == pytest.approx(REFERENCE_COM_HEIGHT, abs=1e-12)
     for robot in PACKAGED:
         model = models[robot.name]
-        scale = robot_scale(robot, model)
-        assert scale.length == pytest.approx(com_height(robot, model) / REFERENCE_COM_HEIGHT)
-        assert 0.5 < scale.length < 0.9
+        derived = com_height(robot, model) / REFERENCE_COM_HEIGHT
+        assert robot_scale(robot, model).length == pytest.approx(derived, abs=1e-4)
+        unset = robot_scale(dataclasses.replace(robot, length_scale=None), model)
+        assert unset.length == pytest.approx(derived, rel=1e-12)
+    # The G1's default gains are Valkyrie's at its size (Apollo keeps Valkyrie's).
+    scale = robot_scale(G1, models["g1"])
+    assert G1.gains.com.kp[2] == pytest.approx(VALKYRIE.gains.com.kp[2] / scale.length)
+    assert G1.gains.com.kd[0] == pytest.approx(VALKYRIE.gains.com.kd[0] / scale.time)
+    assert G1.gains.cam.kp[0] == pytest.approx(VALKYRIE.gains.cam.kp[0] / scale.time)
+    assert G1.gains.contact.kp == (0.0,) and APOLLO.gains == VALKYRIE.gains
 
 
 def test_gait_numbers_scale_as_lengths_times_and_speeds():

@@ -12,7 +12,8 @@ goes from 5 ms to 1 ms, the controller's rate.
 
 from __future__ import annotations
 
-from jaxloco.robots.description import Foot, RobotDescription
+from jaxloco.planner.scaling import FroudeScale
+from jaxloco.robots.description import Foot, RobotDescription, TaskGains
 from jaxloco.robots.model_source import AddedSite, FootSites, PackagedModel, StandingKeyframe
 
 SIDES = ("left", "right")
@@ -66,6 +67,11 @@ APOLLO_MODEL = PackagedModel(
     timestep=0.001,
 )
 
+APOLLO_SCALE = FroudeScale(0.8284)
+"""The robot's size relative to Valkyrie's: its CoM height above the soles in its keyframe,
+0.885 m, over Valkyrie's 1.068 m (``robot_scale`` derives it from the model; a test checks
+the two agree)."""
+
 APOLLO = RobotDescription(
     name="apollo",
     model=APOLLO_MODEL,
@@ -81,6 +87,11 @@ APOLLO = RobotDescription(
     ),
     keyframe="walk",
     torque_limits_in_qp=True,
+    length_scale=APOLLO_SCALE.length,
+    # Valkyrie's gains as they are: scaled to Apollo's size (kp x1.21, kd x1.10), a 12-step
+    # walk commanded the legs 39x their limits and relaxed the friction cone 80 ticks,
+    # against 3.7x and none unscaled (docs/robots.md).
+    gains=TaskGains(),
     planner="apollo",
     fall_height=0.6,
 )

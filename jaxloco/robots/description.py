@@ -60,6 +60,24 @@ class TaskGains:
     foot_position: PD = PD((400.0,), (40.0,))
     posture: PD = PD((100.0,), (20.0,))
 
+    def scaled(self, scale: FroudeScale) -> TaskGains:
+        """These gains for a robot ``scale`` times the size they were chosen for (Froude
+        scaling: a stiffness ``kp`` in 1/s^2 by ``1 / L``, a damping ``kd`` in 1/s by
+        ``1 / sqrt(L)``; the CAM task's ``kp`` is a rate, 1/s), so the tasks' responses keep
+        their shape in the robot's time scale. The identity for ``L = 1``."""
+        if scale.length == 1.0:
+            return self
+
+        def pd(gains: PD, kp_per_time_squared: bool = True) -> PD:
+            kp_factor = 1.0 / (scale.length if kp_per_time_squared else scale.time)
+            return PD(
+                tuple(k * kp_factor for k in gains.kp), tuple(k / scale.time for k in gains.kd)
+            )
+
+        return TaskGains(
+            **{f.name: pd(getattr(self, f.name), f.name != "cam") for f in dataclasses.fields(self)}
+        )
+
 
 @dataclasses.dataclass(frozen=True)
 class RobotDescription:

@@ -11,7 +11,8 @@ the floor. The timestep stays 2 ms: the controller runs at 500 Hz on this robot.
 
 from __future__ import annotations
 
-from jaxloco.robots.description import Foot, RobotDescription
+from jaxloco.planner.scaling import FroudeScale
+from jaxloco.robots.description import Foot, RobotDescription, TaskGains
 from jaxloco.robots.model_source import AddedSite, FootSites, PackagedModel, StandingKeyframe
 
 SIDES = ("left", "right")
@@ -59,6 +60,11 @@ G1_MODEL = PackagedModel(
     standing=StandingKeyframe("walk", "stand", WALK_POSTURE),
 )
 
+G1_SCALE = FroudeScale(0.6293)
+"""The robot's size relative to Valkyrie's: its CoM height above the soles in its keyframe,
+0.672 m, over Valkyrie's 1.068 m (``robot_scale`` derives it from the model; a test checks
+the two agree)."""
+
 G1 = RobotDescription(
     name="g1",
     model=G1_MODEL,
@@ -76,6 +82,8 @@ G1 = RobotDescription(
     ),
     keyframe="walk",
     torque_limits_in_qp=True,
+    length_scale=G1_SCALE.length,
+    gains=TaskGains().scaled(G1_SCALE),  # Valkyrie's gains at this size (Froude scaling)
     planner="g1",
     fall_height=0.45,
 )
