@@ -301,10 +301,10 @@ def test_g1_walks_three_steps_on_mujoco_c(models):
 
 
 def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
-    """`jaxloco push-sweep robot=g1`: one cell, one round, one replica; the G1's defaults
-    follow the robot (its effort limits, MuJoCo's solver, its fall height, a bracket of the
-    same velocity change as Valkyrie's 0-128 N s) and the report gives the limit in m/s
-    against the paper's push at the G1's mass."""
+    """`jaxloco push-sweep robot=g1`: one cell, one round, one replica, a short horizon. The
+    G1's defaults follow the robot (its effort limits, MuJoCo's solver, its fall height, a
+    bracket of the same velocity change as Valkyrie's 0-128 N s) and the report gives the
+    limit in m/s against the paper's push at the G1's mass."""
     args = [
         "push-sweep",
         "robot=g1",
@@ -314,6 +314,9 @@ def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
         "search.rounds=1",
         "search.replicas=1",
         "search.min_recovered=1",
+        "search.push_step=2",  # CI-sized: pushed early, watched briefly
+        "search.horizon=1.5",
+        "search.steps_after=1",
         "workers=1",
     ]
     proc = run_cli(args, tmp_path, timeout=900)
