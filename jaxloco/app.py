@@ -25,13 +25,16 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
+import mujoco
 from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
+from jaxloco.locomotion.gait import GaitParams
 from jaxloco.locomotion.walking import robot_gait
-from jaxloco.robots import robot_by_name
+from jaxloco.robots import RobotDescription, robot_by_name
 from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, watchdog
 from jaxloco.sweep.limits import PAPER_MASS
 
@@ -99,12 +102,22 @@ def robot_physics_schema(schema: type):
     return lambda: schema(**{f: robot_default(f) for f in fields})
 
 
-def robot_setup(name: str, gait=None):
+class RobotSetup(NamedTuple):
+    """What an experiment builds its controller from."""
+
+    robot: RobotDescription
+    model: mujoco.MjModel
+    """The robot's model, checked against its description."""
+    gait: GaitParams
+    """The gait numbers at the robot's size."""
+
+
+def robot_setup(name: str, gait: GaitParams | None = None) -> RobotSetup:
     """The shipped robot ``name``, its model, and ``gait`` (reference-size numbers, e.g. a
-    config's) scaled to its size: ``(robot, model, gait)``."""
+    config's; default ``GaitParams()``) scaled to its size."""
     robot = robot_by_name(name)
     model = robot.load()
-    return robot, model, robot_gait(robot, model, gait)
+    return RobotSetup(robot, model, robot_gait(robot, model, gait))
 
 
 def run_in_hydra(cfg, run: Callable, as_object: bool = True) -> tuple[dict, Path]:
