@@ -321,13 +321,22 @@ def test_jit_and_vmap_match_unbatched_calls():
 
 
 def test_float32_stays_float32_and_compiles_once():
-    f = jax.jit(lambda s, a: plan_step(s, a, P))
+    # Count traces, not the C++ dispatch cache: that cache's size depends on
+    # which fast path the process happens to take and has read 0 under xdist.
+    traces = []
+
+    def plan(s, a):
+        traces.append(s.dtype)
+        return plan_step(s, a, P)
+
+    f = jax.jit(plan)
     s = jnp.asarray([0.056, 0.2, 0.0], jnp.float32)
     a = jnp.asarray([0.3, 0.2, 0.0], jnp.float32)
-    plan = f(s, a)
-    assert plan.t_switch.dtype == jnp.float32 and plan.next_state.dtype == jnp.float32
+    out = f(s, a)
+    assert out.t_switch.dtype == jnp.float32 and out.next_state.dtype == jnp.float32
     f(s + 0.001, a)
-    assert f._cache_size() == 1
+    f(np.asarray([0.05, 0.21, 0.0], np.float32), a)
+    assert len(traces) == 1
 
 
 def test_bad_shapes_raise():
