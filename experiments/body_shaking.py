@@ -104,13 +104,13 @@ def run(cfg: BodyShakingConfig, out_dir: Path) -> dict:
         r = results[which]
         ax_err.plot(
             res.time,
-            res.outputs["body_error"],
+            res.outputs.body_error,
             lw=1,
             label=f"{which} (RMS {r['rms_body_error_rad']:.4f} rad)",
         )
         ax_tau.plot(
             res.time,
-            res.outputs["torque_norm"],
+            res.outputs.torque_norm,
             lw=1,
             label=f"{which} (mean {r['mean_torque_norm_Nm']:.0f} N m)",
         )

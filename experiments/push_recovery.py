@@ -111,19 +111,19 @@ def _outcome(res, push_time, steps_after):
     o = res.log.outputs
     t = res.log.time
     after = t >= push_time
-    step_at_push = int(o["step"][np.argmax(after)]) if after.any() else 0
-    steps_after_push = int(o["step"][-1]) - step_at_push
+    step_at_push = int(o.step[np.argmax(after)]) if after.any() else 0
+    steps_after_push = int(o.step[-1]) - step_at_push
     recovered = (not res.fell) and steps_after_push >= steps_after
     return {
         "recovered": bool(recovered),
         "fell": bool(res.fell),
         "fall_time_s": res.fall_time,
         "steps_after_push": steps_after_push,
-        "replans": int(o["replans"][-1]),
-        "failed_plans": int(o["failed_plans"][-1]),
-        "max_com_error_m": float(np.max(o["com_error"][after])) if after.any() else 0.0,
-        "qp_relaxed_ticks": int(np.sum(o["relaxed"][after])),
-        "peak_torque_norm_Nm": float(np.max(o["torque_norm"])),
+        "replans": int(o.replans[-1]),
+        "failed_plans": int(o.failed_plans[-1]),
+        "max_com_error_m": float(np.max(o.com_error[after])) if after.any() else 0.0,
+        "qp_relaxed_ticks": int(np.sum(o.relaxed[after])),
+        "peak_torque_norm_Nm": float(np.max(o.torque_norm)),
     }
 
 
@@ -137,9 +137,7 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
         variants["no_replan"] = dataclasses.replace(gait, replan=False)
     planner = robot_planner(robot, model, load_planner(cfg.planner) if cfg.planner else None)
     ctrls = {
-        k: make_walking_controller(
-            model, config=config, gait=g, planner=planner, robot=robot
-        )
+        k: make_walking_controller(model, config=config, gait=g, planner=planner, robot=robot)
         for k, g in variants.items()
     }
     steps = {k: jax.jit(c.step) for k, c in ctrls.items()}  # one compile per variant
@@ -204,15 +202,15 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
         ax_y.set(xlabel="y (m)", ylabel="yd (m/s)")
         ax_x.set(xlabel="x (m)", ylabel="xd (m/s)")
         o = res.log.outputs
-        _, side, steps = stance_footsteps(t, o["stance"], o["feet"])
+        _, side, steps = stance_footsteps(t, o.stance, o.feet)
         bo = base.log.outputs
-        plot_top_view(ax_top, bo["com"][:, :2], label="undisturbed", color="0.6", lw=0.8)
-        plot_top_view(ax_top, o["com"][:, :2], footsteps=steps, stance=side, label="pushed", lw=1)
+        plot_top_view(ax_top, bo.com[:, :2], label="undisturbed", color="0.6", lw=0.8)
+        plot_top_view(ax_top, o.com[:, :2], footsteps=steps, stance=side, label="pushed", lw=1)
         k = int(np.argmax(t >= cfg.push_time))
         ax_top.annotate(
             "",
-            xy=o["com"][k, :2],
-            xytext=o["com"][k, :2]
+            xy=o.com[k, :2],
+            xytext=o.com[k, :2]
             - 0.25 * np.array([np.cos(np.radians(direction)), np.sin(np.radians(direction))]),
             arrowprops={"arrowstyle": "->", "color": "k"},
         )

@@ -34,7 +34,7 @@ creep) and ``summary.json`` to the run directory.
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import hydra
 import numpy as np
@@ -52,8 +52,9 @@ from jaxloco.dynamics.model import load_valkyrie
 from jaxloco.runtime import (
     write_json,
 )
+from jaxloco.sim.mujoco_c import ClosedLoopLog
 from jaxloco.sim.push import PushArrays
-from jaxloco.sim.shaking import shaking_metrics, shaking_simulator
+from jaxloco.sim.shaking import ShakingLog, shaking_metrics, shaking_simulator
 from jaxloco.tuning.gains import GainSpace, tuned_values
 from jaxloco.tuning.optimize import TuneConfig, recorded_params, tune_in_dir
 from jaxloco.tuning.problems import ShakingLossParams, shaking_loss
@@ -120,14 +121,23 @@ def training_frequencies(problem: ShakingLossParams, shaking: ShakingParams) -> 
     return tuple(problem.frequencies) or (shaking.frequency_hz,)
 
 
-def shake(simulate, frequencies, duration, gains=None) -> dict:
-    """``{"f Hz": {"metrics", "time", "log"}}``: one MuJoCo C run per frequency
-    (``simulate``: a :func:`shaking_simulator`; ``gains``: the full WBLC gains pytree,
-    default: its config's)."""
+class ShakeRun(NamedTuple):
+    """One held-out shaking run on MuJoCo C."""
+
+    metrics: dict
+    """:func:`shaking_metrics` of the run."""
+    log: ClosedLoopLog[ShakingLog]
+    """Every tick of the run."""
+
+
+def shake(simulate, frequencies, duration, gains=None) -> dict[str, ShakeRun]:
+    """``{"f Hz": ShakeRun}``: one MuJoCo C run per frequency (``simulate``: a
+    :func:`shaking_simulator`; ``gains``: the full WBLC gains pytree, default: its
+    config's)."""
     out = {}
     for f in frequencies:
         res = simulate(duration, gains=gains, frequency_hz=float(f))
-        out[f"{f:g}"] = {"metrics": shaking_metrics(res), "time": res.time, "log": res.outputs}
+        out[f"{f:g}"] = ShakeRun(shaking_metrics(res), res)
     return out
 
 
@@ -140,7 +150,7 @@ def validate(simulate, frequencies, space, base, history, cfg) -> list[dict]:
         params = recorded_params(history[it])
         values = tuned_values(space, params, base)
         runs = shake(simulate, frequencies, cfg.validation_duration, space.gains(params, base))
-        metrics = {f: r["metrics"] for f, r in runs.items()}
+        metrics = {f: r.metrics for f, r in runs.items()}
         errors = [np.inf if m["fell"] else m["rms_body_error_rad"] for m in metrics.values()]
         rows.append(
             {"iteration": it, "score": float(np.max(errors)), "gains": values, "runs": metrics}
@@ -185,24 +195,24 @@ def plot_before_after(before, after, path: Path, dpi: int):
     for row, f in enumerate(freqs):
         for name, runs, color in (("hand-set", before, "tab:gray"), ("tuned", after, "tab:blue")):
             r = runs[f]
-            m = r["metrics"]
+            m = r.metrics
             axes[row, 0].plot(
-                r["time"],
-                r["log"]["body_error"],
+                r.log.time,
+                r.log.outputs.body_error,
                 lw=1,
                 color=color,
                 label=f"{name} (RMS {m['rms_body_error_rad']:.4f} rad)",
             )
             axes[row, 1].plot(
-                r["time"],
-                r["log"]["torque_norm"],
+                r.log.time,
+                r.log.outputs.torque_norm,
                 lw=1,
                 color=color,
                 label=f"{name} (mean {m['mean_torque_norm_Nm']:.0f} N m)",
             )
             axes[row, 2].plot(
-                r["time"],
-                100 * r["log"]["foot_slip"],
+                r.log.time,
+                100 * r.log.outputs.foot_slip,
                 lw=1,
                 color=color,
                 label=f"{name} (final {100 * m['final_foot_slip_m']:.1f} cm)",
@@ -299,9 +309,7 @@ def run(cfg, out_dir: Path) -> dict:
         ],
         "hand_set_gains": hand,
         "tuned_gains": values,
-        "heldout": {
-            f: {"hand_set": before[f]["metrics"], "tuned": after[f]["metrics"]} for f in before
-        },
+        "heldout": {f: {"hand_set": before[f].metrics, "tuned": after[f].metrics} for f in before},
     }
     summary["heldout_improved"] = all(
         v["tuned"]["rms_body_error_rad"] < v["hand_set"]["rms_body_error_rad"]

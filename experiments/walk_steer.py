@@ -101,7 +101,7 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
         progress="walk-steer",
     )
     o, t = res.log.outputs, res.log.time
-    heading = np.asarray(o["heading"])
+    heading = np.asarray(o.heading)
     summary = {
         "config": OmegaConf.to_container(OmegaConf.structured(cfg)),
         "fell": bool(res.fell),
@@ -112,11 +112,11 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
         "final_commanded_heading_deg": float(np.rad2deg(np.sum(turns))),
         "max_heading_deg": float(np.rad2deg(heading.max())),
         "final_heading_deg": float(np.rad2deg(heading[-1])),
-        "distance_m": float(np.sum(np.linalg.norm(np.diff(o["com"][:, :2], axis=0), axis=1))),
-        "max_com_error_m": float(np.max(o["com_error"])),
-        "replans": int(o["replans"][-1]),
-        "failed_plans": int(o["failed_plans"][-1]),
-        "qp_relaxed_ticks": int(np.sum(o["relaxed"])),
+        "distance_m": float(np.sum(np.linalg.norm(np.diff(o.com[:, :2], axis=0), axis=1))),
+        "max_com_error_m": float(np.max(o.com_error)),
+        "replans": int(o.replans[-1]),
+        "failed_plans": int(o.failed_plans[-1]),
+        "qp_relaxed_ticks": int(np.sum(o.relaxed)),
     }
     summary["pushes"] = [dataclasses.asdict(p) for p in cfg.pushes]
     summary["completed"] = (not res.fell) and res.steps_taken >= total
@@ -124,9 +124,9 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
 
     fig = Figure(figsize=(12, 5.5), constrained_layout=True)
     ax_top, ax_x, ax_y = fig.subplots(1, 3, gridspec_kw={"width_ratios": [1.6, 1, 1]})
-    _, side, steps = stance_footsteps(t, o["stance"], o["feet"])
-    plot_top_view(ax_top, o["com"][:, :2], footsteps=steps, stance=side, lw=1.2)
-    ax_top.plot(o["com_ref"][:, 0], o["com_ref"][:, 1], "k--", lw=0.6, label="CoM reference")
+    _, side, steps = stance_footsteps(t, o.stance, o.feet)
+    plot_top_view(ax_top, o.com[:, :2], footsteps=steps, stance=side, lw=1.2)
+    ax_top.plot(o.com_ref[:, 0], o.com_ref[:, 1], "k--", lw=0.6, label="CoM reference")
     for push in cfg.pushes:
         k = int(np.argmax(t >= push.start))
         if t[-1] >= push.start:
@@ -135,16 +135,16 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
             )
             ax_top.annotate(
                 f"{push.magnitude:.0f} N",
-                xy=o["com"][k, :2],
-                xytext=o["com"][k, :2] - 0.3 * u,
+                xy=o.com[k, :2],
+                xytext=o.com[k, :2] - 0.3 * u,
                 arrowprops={"arrowstyle": "->", "color": "k"},
                 fontsize=8,
             )
     ax_top.legend(fontsize=8)
     ax_top.set_title("(a) top view: CoM path and footholds (green left, red right)")
     local = local_com_states(res.log)
-    walking = np.asarray(o["phase"]) == 1
-    step_id = np.asarray(o["step"])
+    walking = np.asarray(o.phase) == 1
+    step_id = np.asarray(o.step)
     for k in np.unique(step_id[walking]):
         m = walking & (step_id == k)
         ax_x.plot(local[m, 0], local[m, 1], lw=0.8)

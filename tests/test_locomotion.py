@@ -445,14 +445,14 @@ def test_walks_a_few_steps_and_recovers_a_push_ci_sized(walker):
     o = res.log.outputs
     assert not res.fell, res.fall_time
     assert res.steps_taken >= 3
-    assert int(o["failed_plans"][-1]) == 0
+    assert int(o.failed_plans[-1]) == 0
     before = res.log.time < 2.0
-    assert np.max(o["com_error"][before]) < 0.02  # the CoM follows the LIPM reference
-    assert np.max(o["com_error"][~before]) > np.max(o["com_error"][before])  # the push is felt
+    assert np.max(o.com_error[before]) < 0.02  # the CoM follows the LIPM reference
+    assert np.max(o.com_error[~before]) > np.max(o.com_error[before])  # the push is felt
     # Upright: the CoM keeps its reference height (the pelvis itself bobs by +-3 cm a step).
-    assert np.max(np.abs(o["com"][:, 2] - o["com_ref"][:, 2])) < 0.02
+    assert np.max(np.abs(o.com[:, 2] - o.com_ref[:, 2])) < 0.02
     walking = res.log.time > ctrl.gait_params.start_duration + 0.5
-    np.testing.assert_allclose(o["com_ref"][walking, 2], ctrl.gait_params.com_height, atol=0.01)
+    np.testing.assert_allclose(o.com_ref[walking, 2], ctrl.gait_params.com_height, atol=0.01)
     assert np.min(res.log.qpos[:, 2]) > 0.9
 
 
@@ -520,11 +520,14 @@ def test_mjx_and_mujoco_c_agree_through_liftoff(walker):
 
     log, _ = run_closed_loop(physics, data, jax.jit(ctrl.step), cstate, steps)
     # MJX logs the controller's view of the last tick of every 100.
-    c_com = log.outputs["com"][99::100]
-    c_feet = log.outputs["feet"][99::100]
-    assert np.abs(np.asarray(logs["com"]) - c_com).max() < 1e-3
-    assert np.abs(np.asarray(logs["feet"]) - c_feet).max() < 5e-3
-    assert int(logs["phase"][-1]) == gait_lib.WALK
+    c_com = log.outputs.com[99::100]
+    c_feet = log.outputs.feet[99::100]
+    mjx_log = logs.last.controller
+    assert np.abs(np.asarray(mjx_log.com) - c_com).max() < 1e-3
+    assert np.abs(np.asarray(mjx_log.feet) - c_feet).max() < 5e-3
+    assert int(mjx_log.phase[-1]) == gait_lib.WALK
+    # ... and the state after those 100 ticks: the base's position.
+    np.testing.assert_allclose(np.asarray(logs.qpos)[:-1, :3], log.qpos[100::100, :3], atol=5e-3)
 
 
 # --- experiments, CI-sized ---------------------------------------------------------------

@@ -265,8 +265,7 @@ def test_g1_stands_under_wblc_at_its_limits(models):
     @jax.jit
     def tick(q, v, prev):
         out = ctrl(q, v, refs, jnp.ones(2), gains, prev)
-        dg = out.diagnostics
-        return out.torques, out.qp_state, {"com": dg.task_errors["com"], "relaxed": dg.qp_relaxed}
+        return out.torques, out.qp_state, out.diagnostics
 
     data = mujoco.MjData(model)
     data.qpos[:] = G1.keyframe_qpos(model)
@@ -280,8 +279,8 @@ def test_g1_stands_under_wblc_at_its_limits(models):
         stop=lambda d: d.qpos[2] < G1.fall_height,
     )
     assert not log.fell and len(log.time) == 500
-    assert np.linalg.norm(log.outputs["com"], axis=1).max() < 0.002
-    assert not log.outputs["relaxed"].any()
+    assert np.linalg.norm(log.outputs.task_errors["com"], axis=1).max() < 0.002
+    assert not log.outputs.qp_relaxed.any()
     assert np.all(np.abs(log.ctrl) <= effort_limits(model) + 1e-6)
 
 
@@ -295,8 +294,8 @@ def test_g1_walks_three_steps_on_mujoco_c(models):
     run = simulate_walk(model, ctrl, 4.0, max_steps=3)
     assert not run.fell and run.steps_taken > 3
     o = run.log.outputs
-    assert int(o["failed_plans"][-1]) == 0
-    feet = np.asarray(o["feet"])
+    assert int(o.failed_plans[-1]) == 0
+    feet = np.asarray(o.feet)
     assert feet[-1, :, 0].max() > 0.2  # it went forward
 
 

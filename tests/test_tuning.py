@@ -330,10 +330,14 @@ def test_shaking_simulator_takes_gains_and_frequency_as_data():
     simulate = shaking_simulator(model, config, ShakingParams(ramp=0.0))
     got = simulate(0.05, gains=default_gains(tuned.tasks), frequency_hz=1.5)
     assert len(got.time) == 50 and not got.fell
-    for key in ("body_error", "torque_norm"):
-        np.testing.assert_allclose(got.outputs[key], want.outputs[key], rtol=1e-6, atol=1e-9)
+    np.testing.assert_allclose(
+        got.outputs.body_error, want.outputs.body_error, rtol=1e-6, atol=1e-9
+    )
+    np.testing.assert_allclose(
+        got.outputs.torque_norm, want.outputs.torque_norm, rtol=1e-6, atol=1e-9
+    )
     plain = simulate(0.05)  # the config's own gains at its own 1 Hz
-    assert np.max(np.abs(plain.outputs["torque_norm"] - got.outputs["torque_norm"])) > 1.0
+    assert np.max(np.abs(plain.outputs.torque_norm - got.outputs.torque_norm)) > 1.0
     with pytest.raises(ValueError, match="duration must be > 0"):
         simulate(0.0)
 

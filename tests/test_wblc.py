@@ -519,23 +519,18 @@ def test_valkyrie_stands_under_wblc(valkyrie, seconds):
 
     def controller(t, qpos, qvel, prev):
         out = tick(jnp.asarray(qpos), jnp.asarray(qvel), refs, prev, gains)
-        dg = out.diagnostics
-        return (
-            out.torques,
-            out.qp_state,
-            {"forces": dg.contact_forces, "relaxed": dg.qp_relaxed, "com": dg.task_errors["com"]},
-        )
+        return out.torques, out.qp_state, out.diagnostics
 
     log, _ = run_closed_loop(
         model, data, controller, ctrl.initial_qp_state(), ticks, stop=lambda d: d.qpos[2] < 0.8
     )
     assert not log.fell and len(log.time) == ticks
-    com_err = np.linalg.norm(log.outputs["com"], axis=1)
+    com_err = np.linalg.norm(log.outputs.task_errors["com"], axis=1)
     assert com_err.max() < 0.01, com_err.max()
     assert np.linalg.norm(data.subtree_com[1] - com0) < 0.01
-    forces = log.outputs["forces"]
+    forces = log.outputs.contact_forces
     tangential = np.linalg.norm(forces[..., :2], axis=-1)
-    assert not log.outputs["relaxed"].any()
+    assert not log.outputs.qp_relaxed.any()
     assert np.all(np.abs(forces[..., 0]) <= 0.65 * forces[..., 2] + 1e-6)
     assert np.all(np.abs(forces[..., 1]) <= 0.65 * forces[..., 2] + 1e-6)
     assert tangential.max() < 0.65 * 1.5 * forces[..., 2].max()

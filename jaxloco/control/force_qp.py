@@ -35,6 +35,7 @@ row.
 from __future__ import annotations
 
 import dataclasses
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -247,7 +248,20 @@ def moment_map(points, in_contact, com):
     )
 
 
-def affine_step(points, in_contact, com, f_lin, f_ang, params: ForceQPParams):
+class AffineStep(NamedTuple):
+    """ADMM's ``f``-step as an affine map ``f = matrix v + offset`` (scaled force units,
+    coordinate-major: ``f`` is ``(3n,)``, rows ``x``, then ``y``, then ``z``)."""
+
+    matrix: jax.Array
+    """(3n, 3n) or, with torque rows, (3n, 3n + m): the map of ``v`` (``z - u``, then the
+    torque rows' ``z_t - u_t``)."""
+    offset: jax.Array
+    """(3n,) the constant part ``c``."""
+    moment_map: jax.Array
+    """(3, 3n) ``W_ang``: the moment of the forces about the CoM."""
+
+
+def affine_step(points, in_contact, com, f_lin, f_ang, params: ForceQPParams) -> AffineStep:
     """The ADMM ``f``-step as ``f = M v + c`` (``v = z - u``, all ``(3n,)``, scaled units,
     coordinate-major), and the moment map ``W_ang`` ``(3, 3n)``.
 
@@ -285,7 +299,7 @@ def affine_step(points, in_contact, com, f_lin, f_ang, params: ForceQPParams):
     schur = w_lin @ g_lin + jnp.eye(3, dtype=dtype) * jnp.finfo(dtype).eps
     schur_inv = _inv3(schur)
     pi = g - g_lin @ schur_inv @ g_lin.T
-    return rho * pi, g_lin @ (schur_inv @ (f_lin / s)) - pi @ q, w_ang
+    return AffineStep(rho * pi, g_lin @ (schur_inv @ (f_lin / s)) - pi @ q, w_ang)
 
 
 def admm(matrix, offset, fz_lo, fz_hi, mu, params: ForceQPParams, warm: ForceQPState):
@@ -328,13 +342,14 @@ def admm(matrix, offset, fz_lo, fz_hi, mu, params: ForceQPParams, warm: ForceQPS
     return ForceQPState(z, u, warm.torque_z, warm.torque_u), f_step(z - u)
 
 
-def affine_step_with_torques(points, in_contact, com, f_lin, f_ang, params: ForceQPParams, rows):
+def affine_step_with_torques(
+    points, in_contact, com, f_lin, f_ang, params: ForceQPParams, rows
+) -> AffineStep:
     """The ``f``-step with torque-limit rows ``rows`` ((m, 3n) map of the scaled forces to
     torques in units of their limits): ``f = M [v; v_t] + c``, ``M`` (3n, 3n + m), from
     ``1/2 f'Pf + q'f + rho/2 |f - v|^2 + rho_t/2 |rows f - v_t|^2`` subject to the net
-    force (``P``, ``q`` as :func:`affine_step`). The rows make it dense: one Cholesky
-    factorisation of the (3n, 3n) ``P + rho I + rho_t rows' rows``. Returns ``M``, ``c``,
-    ``W_ang`` and ``rho_t``."""
+    force (``P``, ``q`` as :func:`affine_step`; ``rho_t = torque_rho * rho``). The rows make
+    it dense: one Cholesky factorisation of the (3n, 3n) ``P + rho I + rho_t rows' rows``."""
     dtype = points.dtype
     n = points.shape[0]
     s = params.force_scale
@@ -363,7 +378,7 @@ def affine_step_with_torques(points, in_contact, com, f_lin, f_ang, params: Forc
     schur_inv = _inv3(schur)
     pi = h_inv - g_lin @ schur_inv @ g_lin.T
     matrix = jnp.concatenate([rho * pi, rho_t * (pi @ rows.T)], axis=1)
-    return matrix, g_lin @ (schur_inv @ (f_lin / s)) - pi @ q, w_ang, rho_t
+    return AffineStep(matrix, g_lin @ (schur_inv @ (f_lin / s)) - pi @ q, w_ang)
 
 
 def admm_with_torques(matrix, offset, rows, lo, hi, fz_lo, fz_hi, mu, params, warm):
@@ -453,8 +468,8 @@ def solve_contact_forces(
     # fz_max below fz_min (a contact blending in): the point carries exactly fz_min.
     fz_hi = jnp.where(in_contact, jnp.maximum(fz_max, params.fz_min) / s, 0.0).astype(dtype)
     if torques is None:
-        matrix, offset, w_ang = affine_step(points, in_contact, com, f_lin, f_ang, params)
-        state, f = admm(matrix, offset, fz_lo, fz_hi, mu, params, warm_start)
+        step = affine_step(points, in_contact, com, f_lin, f_ang, params)
+        state, f = admm(step.matrix, step.offset, fz_lo, fz_hi, mu, params, warm_start)
         f = f.reshape(-1)
         torque_excess = jnp.zeros((), dtype)
     else:
@@ -468,11 +483,9 @@ def solve_contact_forces(
         norm = jnp.maximum(jnp.linalg.norm(g_scaled, axis=1), jnp.finfo(dtype).tiny)
         rows = g_scaled / norm[:, None]
         lo, hi = (offset_t - limit) / norm, (offset_t + limit) / norm
-        matrix, offset, w_ang, _ = affine_step_with_torques(
-            points, in_contact, com, f_lin, f_ang, params, rows
-        )
+        step = affine_step_with_torques(points, in_contact, com, f_lin, f_ang, params, rows)
         state, f = admm_with_torques(
-            matrix, offset, rows, lo, hi, fz_lo, fz_hi, mu, params, warm_start
+            step.matrix, step.offset, rows, lo, hi, fz_lo, fz_hi, mu, params, warm_start
         )
         tau = offset_t - (rows @ state.z.reshape(-1)) * norm
         # Equality rows (limit 0) are not limits: what they miss shows in the caller's
@@ -482,7 +495,7 @@ def solve_contact_forces(
     forces = state.z.T * s
     return ForceQPSolution(
         forces=forces,
-        angular=(w_ang @ state.z.reshape(-1)) * s,
+        angular=(step.moment_map @ state.z.reshape(-1)) * s,
         linear_residual=jnp.max(jnp.abs(jnp.sum(forces, axis=0) - f_lin)),
         primal_residual=jnp.max(jnp.abs(f - state.z.reshape(-1))) * s,
         relaxed=~nominal_ok,

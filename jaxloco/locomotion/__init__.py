@@ -4,6 +4,7 @@ walking controller that drives WBLC with the learned step planner (paper Section
 from jaxloco.locomotion.gait import GaitOverrides, GaitParams, GaitReferences, GaitState
 from jaxloco.locomotion.swing import SwingSpline, make_swing, retarget_swing
 from jaxloco.locomotion.walking import WalkingController, WalkingState, make_walking_controller
+from jaxloco.locomotion.walking_log import WalkingLog
 
 __all__ = [
     "GaitOverrides",
@@ -12,6 +13,7 @@ __all__ = [
     "GaitState",
     "SwingSpline",
     "WalkingController",
+    "WalkingLog",
     "WalkingState",
     "make_swing",
     "make_walking_controller",

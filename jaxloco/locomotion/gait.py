@@ -50,7 +50,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Callable
-from typing import Optional
+from typing import NamedTuple, Optional
 
 import jax
 import jax.numpy as jnp
@@ -526,6 +526,23 @@ def com_lead_time_limit(params: GaitParams, w, rel, vel):
     return jnp.where(a > 0, jnp.where(disc > 0, t, 0.0), never)
 
 
+class StepDecision(NamedTuple):
+    """A step planned from the CoM state (:func:`_plan`)."""
+
+    duration: jax.Array
+    """() time from now to the touch-down (s)."""
+    foot_xy: jax.Array
+    """(2,) the footstep, world x, y (m)."""
+    apex: jax.Array
+    """(3,) the apex state ``(y_apex, xd_apex, yd_apex)`` the plan started from."""
+    action: jax.Array
+    """(3,) the policy's action ``(p_x, xd_apex_next, yd_apex_next)``, speed capped."""
+    reason: jax.Array
+    """() int32, :class:`~jaxloco.planner.psp.Reason` bit flags of the plan."""
+    failed: jax.Array
+    """() bool, the PSP had no solution: the step is a capture step."""
+
+
 def _plan(
     params: GaitParams,
     psp: PSPParams,
@@ -537,12 +554,9 @@ def _plan(
     sign,
     fallback_remaining,
     apex_speed_cap,
-):
-    """Plan the step from a horizontal CoM state in the stance frame.
-
-    Returns (time from now to touch-down, footstep world xy, apex, action, reason, failed).
-    A plan the PSP cannot make lands a capture step (:func:`capture_step`) in
-    ``fallback_remaining`` s.
+) -> StepDecision:
+    """Plan the step from a horizontal CoM state in the stance frame. A plan the PSP cannot
+    make lands a capture step (:func:`capture_step`) in ``fallback_remaining`` s.
     """
     w = psp.omega
     rel = world_to_local(com_pos - stance_pos[:2], heading, sign)
@@ -578,7 +592,7 @@ def _plan(
         | jnp.where(apex_ok, 0, int(Reason.NO_APEX))
         | jnp.where(shortened, int(Reason.STEP_SHORTENED), 0)
     ).astype(jnp.int32)
-    return duration, foot_xy, apex, action, reason, failed
+    return StepDecision(duration, foot_xy, apex, action, reason, failed)
 
 
 def _begin_step(
@@ -588,7 +602,7 @@ def _begin_step(
     dtype = stance_pos.dtype
     sign = _lateral_sign(stance).astype(dtype)
     com_pos, com_vel, _ = com_reference(state, params, psp, t)
-    duration, foot_xy, apex, action, reason, failed = _plan(
+    plan = _plan(
         params,
         psp,
         policy,
@@ -600,8 +614,8 @@ def _begin_step(
         jnp.asarray(params.fallback_duration, dtype),
         state.overrides.apex_speed,
     )
-    duration = jnp.clip(duration, params.min_step_duration, params.max_step_duration)
-    target = jnp.append(foot_xy, stance_pos[2])
+    duration = jnp.clip(plan.duration, params.min_step_duration, params.max_step_duration)
+    target = jnp.append(plan.foot_xy, stance_pos[2])
     turn_index = jnp.minimum(state.step, state.turns.shape[0] - 1)
     turn = jnp.where(state.step < state.turns.shape[0], state.turns[turn_index], 0.0)
     next_heading = heading + turn
@@ -632,10 +646,10 @@ def _begin_step(
         swing=swing,
         swing_yaw0=state.foot_yaw[swing_foot],
         error_time=jnp.zeros((), dtype),
-        failed_plans=state.failed_plans + failed.astype(jnp.int32),
-        last_apex=apex,
-        last_action=action,
-        last_reason=reason,
+        failed_plans=state.failed_plans + plan.failed.astype(jnp.int32),
+        last_apex=plan.apex,
+        last_action=plan.action,
+        last_reason=plan.reason,
         target=target,
     )
 
@@ -656,7 +670,7 @@ def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
         jnp.maximum(state.step_duration - elapsed, params.replan_min_remaining),
         jnp.clip(params.fallback_duration - elapsed, params.replan_min_remaining + 0.1, None),
     )
-    duration, foot_xy, apex, action, reason, failed = _plan(
+    plan = _plan(
         params,
         psp,
         policy,
@@ -668,8 +682,8 @@ def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
         fallback_remaining,
         state.overrides.apex_speed,
     )
-    remaining = jnp.clip(duration, params.replan_min_remaining, params.max_step_duration)
-    target = jnp.append(foot_xy, state.stance_pos[2])
+    remaining = jnp.clip(plan.duration, params.replan_min_remaining, params.max_step_duration)
+    target = jnp.append(plan.foot_xy, state.stance_pos[2])
     pos = state.swing.evaluate(t)[0]
     swing = retarget_swing(
         state.swing,
@@ -686,10 +700,10 @@ def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
         swing=swing,
         error_time=jnp.zeros_like(state.error_time),
         replans=state.replans + 1,
-        failed_plans=state.failed_plans + failed.astype(jnp.int32),
-        last_apex=apex,
-        last_action=action,
-        last_reason=reason,
+        failed_plans=state.failed_plans + plan.failed.astype(jnp.int32),
+        last_apex=plan.apex,
+        last_action=plan.action,
+        last_reason=plan.reason,
         target=target,
     )
 

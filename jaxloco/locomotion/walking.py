@@ -17,6 +17,7 @@ import mujoco
 import numpy as np
 from flax import struct
 
+from jaxloco.control.force_qp import ForceQPState
 from jaxloco.control.presets import foot_task, walking_config
 from jaxloco.control.tasks import snapshot as robot_snapshot
 from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
@@ -24,6 +25,7 @@ from jaxloco.learning.checkpoint import LearnedPlanner, load_planner
 from jaxloco.learning.scaled import ScaledPlanner, planner_at_height
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.gait import GaitParams, GaitState
+from jaxloco.locomotion.walking_log import WalkingLog
 from jaxloco.robots import DEFAULT_ROBOT, RobotDescription, check_model, robot_scale
 
 ARM_TASK = "arms"
@@ -35,9 +37,12 @@ _snapshot = jax.jit(robot_snapshot)
 
 @struct.dataclass
 class WalkingState:
+    """The walking controller's state between ticks."""
+
     gait: GaitState
-    qp: tuple
-    """The force QP's warm start."""
+    """The gait state machine's state (footsteps, timing, plans)."""
+    qp: ForceQPState
+    """The force QP's warm start (its last ADMM iterate)."""
 
 
 @dataclasses.dataclass(frozen=True, eq=False)
@@ -84,8 +89,10 @@ class WalkingController:
         )
         return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
 
-    def step(self, t, qpos, qvel, state: WalkingState, gains=None):
-        """One control tick: ``(torques, new state, log)``."""
+    def step(
+        self, t, qpos, qvel, state: WalkingState, gains=None
+    ) -> tuple[jax.Array, WalkingState, WalkingLog]:
+        """One control tick: ``(torques, new state, log)``, the log a :class:`WalkingLog`."""
         wblc, params, psp = self.wblc, self.gait_params, self.psp
         snap = wblc.snapshot(qpos, qvel)
         dtype = snap.data.qvel.dtype
@@ -113,30 +120,7 @@ class WalkingController:
                 pos=swing_ori[0], vel=swing_ori[1], acc=swing_ori[2], weight=on
             )
         out = wblc(qpos, qvel, refs, r.contact, gains=gains, previous=state.qp, snap=snap)
-        dg = out.diagnostics
-        log = {
-            "com": snap.com,
-            "com_vel": snap.com_vel,
-            "com_ref": r.com[0],
-            "com_error": r.com_error,
-            "contact": r.contact,
-            "stance": g.stance,
-            "phase": g.phase,
-            "step": g.step,
-            "target": g.target,
-            "replans": g.replans,
-            "step_duration": g.step_duration,
-            "apex": g.last_apex,
-            "action": g.last_action,
-            "reason": g.last_reason,
-            "failed_plans": g.failed_plans,
-            "heading": g.heading,
-            "feet": feet,
-            "swing_ref": r.swing[0],
-            "torque_norm": jnp.linalg.norm(out.torques),
-            "relaxed": dg.qp_relaxed,
-            "over_limit": jnp.any(dg.torque_over_limit),
-        }
+        log = WalkingLog.of(snap.com, snap.com_vel, feet, g, r, out)
         return out.torques, WalkingState(g, out.qp_state), log
 
 

@@ -93,6 +93,4 @@ def scale_psp(psp: PSPParams, scale: FroudeScale) -> PSPParams:
         **dict.fromkeys(_REWARDS, scale.length),
         **dict.fromkeys(_PER_TIME_SQUARED, 1.0 / scale.length),
     }
-    return dataclasses.replace(
-        psp, **{name: getattr(psp, name) * f for name, f in factors.items()}
-    )
+    return dataclasses.replace(psp, **{name: getattr(psp, name) * f for name, f in factors.items()})

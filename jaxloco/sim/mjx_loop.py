@@ -3,8 +3,9 @@
 :func:`closed_loop_step` is one control tick and one physics step (pure torque control at
 the model's timestep, 1 kHz for Valkyrie): the controller reads ``(time, qpos, qvel)``,
 pushes set ``xfrc_applied`` on one body, and ``mjx.step`` integrates. :func:`rollout` scans
-it over a horizon and logs every ``log_every`` ticks (a summary of the ticks in between:
-last values, maxima, counts), so long horizons do not hold every tick in memory. Batch with
+it over a horizon and logs every ``log_every``-th tick (:class:`RolloutLog`), so long
+horizons do not hold every tick in memory (sweeps fold every tick into an accumulator
+instead: :mod:`jaxloco.sweep.outcome`). Batch with
 ``jax.vmap`` over initial states and pushes (:func:`batched_rollout`).
 
 A robot that falls (pelvis below ``fall_height``, or a non-finite state) is frozen from
@@ -24,7 +25,7 @@ from __future__ import annotations
 import copy
 import dataclasses
 from collections.abc import Callable
-from typing import Union
+from typing import Any, Union
 
 import jax
 import jax.numpy as jnp
@@ -99,11 +100,43 @@ def physics_model(model: mujoco.MjModel, params: PhysicsParams | None = None) ->
 
 @struct.dataclass
 class LoopState:
+    """The closed loop's state between ticks (add leading axes when batched)."""
+
     data: mjx.Data
-    controller: object
+    """The simulated robot's MJX data."""
+    controller: Any
+    """The controller's own state (e.g. a
+    :class:`~jaxloco.locomotion.walking.WalkingState`)."""
     fell: jax.Array
+    """() bool, the robot has fallen (its state is frozen from then on)."""
     fall_time: jax.Array
-    """Time of the fall (inf while standing)."""
+    """() time of the fall (s); inf while standing."""
+
+
+@struct.dataclass
+class LoopTick:
+    """What one closed-loop tick records."""
+
+    controller: Any
+    """The controller's log of the tick (e.g. a
+    :class:`~jaxloco.locomotion.walking_log.WalkingLog`)."""
+    force: jax.Array
+    """(3,) the push force applied this tick (N, world frame)."""
+
+
+@struct.dataclass
+class RolloutLog:
+    """:func:`rollout`'s log: one entry per ``log_every`` ticks (leading axis
+    ``steps // log_every``, plus any batch axes in front)."""
+
+    last: LoopTick
+    """The interval's last tick."""
+    time: jax.Array
+    """() simulation time at the interval's end (s)."""
+    qpos: jax.Array
+    """(nq,) joint positions at the interval's end."""
+    fell: jax.Array
+    """() bool, fallen by the interval's end."""
 
 
 def init_loop_state(mx: mjx.Model, qpos, controller_state) -> LoopState:
@@ -123,7 +156,7 @@ def closed_loop_step(
 ):
     """One tick: ``controller(t, qpos, qvel, cstate) -> (torques, cstate, log)``, the
     :class:`~jaxloco.sim.push.PushArrays` ``pushes`` (world frame, any shape) on
-    ``push_body``, then ``mjx.step``. Returns ``(state, log)``."""
+    ``push_body``, then ``mjx.step``. Returns ``(state, LoopTick)``."""
     d = state.data
     torques, cstate, log = controller(d.time, d.qpos, d.qvel, state.controller)
     force = jnp.sum(push_force(pushes, d.time).reshape(-1, 3), axis=0)
@@ -137,20 +170,7 @@ def closed_loop_step(
     data = jax.tree.map(lambda a, b: jnp.where(keep_old, a, b), d, new)
     cstate = jax.tree.map(lambda a, b: jnp.where(state.fell, a, b), state.controller, cstate)
     fall_time = jnp.where(fell & ~state.fell, d.time, state.fall_time)
-    log = dict(log, force=force)
-    return LoopState(data, cstate, fell, fall_time), log
-
-
-def _summarise(logs: dict) -> dict:
-    """Per log-interval summary of per-tick logs (leading axis = ticks)."""
-    out = {k: v[-1] for k, v in logs.items()}
-    for k in ("com_error", "torque_norm"):
-        if k in logs:
-            out[k + "_max"] = jnp.max(logs[k], axis=0)
-    for k in ("relaxed", "over_limit"):
-        if k in logs:
-            out[k + "_count"] = jnp.sum(logs[k].astype(jnp.int32), axis=0)
-    return out
+    return LoopState(data, cstate, fell, fall_time), LoopTick(log, force)
 
 
 def rollout(
@@ -164,8 +184,7 @@ def rollout(
     fall_height: float = 0.7,
 ):
     """``steps`` closed-loop ticks (a multiple of ``log_every``). Returns the final state
-    and a dict of logs with leading axis ``steps // log_every`` (plus ``qpos`` and
-    ``time`` at each log point)."""
+    and a :class:`RolloutLog`, one entry per ``log_every`` ticks."""
     if steps < 1 or log_every < 1 or steps % log_every:
         raise ValueError(
             f"rollout: steps ({steps}) must be a positive multiple of log_every ({log_every})"
@@ -175,10 +194,10 @@ def rollout(
         return closed_loop_step(mx, controller, s, pushes, push_body, fall_height)
 
     def chunk(s, _):
-        s, logs = jax.lax.scan(tick, s, None, length=log_every)
-        summary = _summarise(logs)
-        summary.update(time=s.data.time, qpos=s.data.qpos, fell=s.fell)
-        return s, summary
+        # Only the interval's last tick is returned: long horizons stay small in memory.
+        s, ticks = jax.lax.scan(tick, s, None, length=log_every)
+        last = jax.tree.map(lambda x: x[-1], ticks)
+        return s, RolloutLog(last, s.data.time, s.data.qpos, s.fell)
 
     return jax.lax.scan(chunk, state, None, length=steps // log_every)
 

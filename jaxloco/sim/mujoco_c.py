@@ -9,21 +9,33 @@ from __future__ import annotations
 
 import dataclasses
 from collections.abc import Callable
+from typing import Generic, TypeVar
 
 import jax
 import mujoco
 import numpy as np
 from tqdm.auto import tqdm
 
+Log = TypeVar("Log")
+"""The type of a controller's per-tick log (e.g. a
+:class:`~jaxloco.locomotion.walking_log.WalkingLog`)."""
+
 
 @dataclasses.dataclass
-class ClosedLoopLog:
+class ClosedLoopLog(Generic[Log]):
+    """A closed-loop run on MuJoCo C, every physics step recorded (``T`` steps)."""
+
     time: np.ndarray
+    """(T,) simulation time at each step, before it (s)."""
     qpos: np.ndarray
+    """(T, nq) joint positions before each step."""
     qvel: np.ndarray
+    """(T, nv) joint velocities before each step."""
     ctrl: np.ndarray
-    outputs: dict
-    """Each entry the controller's per-step ``log`` output, stacked over time."""
+    """(T, nu) the controls applied."""
+    outputs: Log | None
+    """The controller's per-tick log with every leaf stacked over time (a leading axis of
+    ``T``; numpy); None when no step ran."""
     fell: bool
     """True when the run stopped early because ``stop(data)`` said so."""
 
@@ -37,12 +49,13 @@ def run_closed_loop(
     stop: Callable[[mujoco.MjData], bool] | None = None,
     progress: bool | str = False,
     perturb: Callable[[mujoco.MjData], None] | None = None,
-    done: Callable[[dict], bool] | None = None,
-) -> tuple[ClosedLoopLog, object]:
+    done: Callable[[Log], bool] | None = None,
+) -> tuple[ClosedLoopLog[Log], object]:
     """Run ``steps`` physics steps with ``ctrl = controller(t, qpos, qvel, carry)``.
 
     ``controller`` (jitted by the caller) returns ``(torques, carry, log)``; ``log`` is a
-    dict of arrays recorded every step. ``stop(data)`` ends the run early (a fall).
+    pytree of arrays (e.g. a :class:`~jaxloco.locomotion.walking_log.WalkingLog`) recorded
+    every step. ``stop(data)`` ends the run early (a fall).
     ``perturb(data)`` runs before every physics step (e.g. sets ``xfrc_applied`` for pushes);
     ``done(log)`` ends the run (not as a fall) when the controller's log says so.
     Returns the log and the final carry.
@@ -68,7 +81,9 @@ def run_closed_loop(
             break
         if done is not None and done(log):
             break
-    outputs = jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *logs) if logs else {}
+    outputs = (
+        jax.tree.map(lambda *xs: np.stack([np.asarray(x) for x in xs]), *logs) if logs else None
+    )
     return (
         ClosedLoopLog(
             np.array(times), np.array(qpos), np.array(qvel), np.array(ctrl), outputs, fell

@@ -14,6 +14,7 @@ import mujoco
 import numpy as np
 
 from jaxloco.locomotion.walking import WalkingController
+from jaxloco.locomotion.walking_log import WalkingLog
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
 from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
 from jaxloco.sim.push import Push, PushArrays, apply_push_c, body_index
@@ -21,11 +22,18 @@ from jaxloco.sim.push import Push, PushArrays, apply_push_c, body_index
 
 @dataclasses.dataclass
 class WalkRun:
-    log: ClosedLoopLog
+    """A walk on MuJoCo C (:func:`simulate_walk`)."""
+
+    log: ClosedLoopLog[WalkingLog]
+    """Every tick of the run."""
     pushes: tuple[Push, ...]
+    """The pushes applied."""
     steps_taken: int
+    """Steps begun by the end of the run."""
     fell: bool
+    """The base dropped below the fall height (or the state went non-finite)."""
     fall_time: float | None
+    """Time of the fall (s); None when it did not fall."""
 
 
 def simulate_walk(
@@ -65,7 +73,7 @@ def simulate_walk(
         if rows is not None:
             apply_push_c(sim_model, d, rows, body)
 
-    done = None if max_steps is None else (lambda log: int(log["step"]) > max_steps)
+    done = None if max_steps is None else (lambda log: int(log.step) > max_steps)
     log, _ = run_closed_loop(
         sim_model,
         data,
@@ -77,22 +85,22 @@ def simulate_walk(
         perturb=perturb,
         done=done,
     )
-    steps = int(log.outputs["step"][-1]) if len(log.time) else 0
+    steps = int(log.outputs.step[-1]) if len(log.time) else 0
     return WalkRun(log, tuple(pushes), steps, log.fell, float(log.time[-1]) if log.fell else None)
 
 
-def local_com_states(log: ClosedLoopLog) -> np.ndarray:
+def local_com_states(log: ClosedLoopLog[WalkingLog]) -> np.ndarray:
     """Per tick, the CoM state ``(x, xd, y, yd)`` relative to the stance foot in the stance
     frame (x along the step's heading, y mirrored towards the swing side): what Fig. 11b
     and Fig. 12 plot."""
     o = log.outputs
-    stance = np.asarray(o["stance"])
-    foot = np.asarray(o["feet"])[np.arange(len(stance)), stance]
-    heading = np.asarray(o["heading"])
+    stance = np.asarray(o.stance)
+    foot = np.asarray(o.feet)[np.arange(len(stance)), stance]
+    heading = np.asarray(o.heading)
     sign = np.where(stance == 1, 1.0, -1.0)
     c, s = np.cos(heading), np.sin(heading)
-    rel = np.asarray(o["com"])[:, :2] - foot[:, :2]
-    vel = np.asarray(o["com_vel"])[:, :2]
+    rel = np.asarray(o.com)[:, :2] - foot[:, :2]
+    vel = np.asarray(o.com_vel)[:, :2]
     x = c * rel[:, 0] + s * rel[:, 1]
     y = sign * (-s * rel[:, 0] + c * rel[:, 1])
     xd = c * vel[:, 0] + s * vel[:, 1]

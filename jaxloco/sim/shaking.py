@@ -11,11 +11,28 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
+from flax import struct
 
 from jaxloco.control.shaking import ShakingParams, shaking_reference
 from jaxloco.control.wblc import WBLCConfig, make_wblc
 from jaxloco.robots import DEFAULT_ROBOT, RobotDescription
 from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
+
+
+@struct.dataclass
+class ShakingLog:
+    """One tick of body shaking (stacked over time in a run's ``outputs``)."""
+
+    body_error: jax.Array
+    """() norm of the body orientation task's error (rad)."""
+    foot_slip: jax.Array
+    """() the largest horizontal displacement of a foot contact point from its start (m)."""
+    torque_norm: jax.Array
+    """() Euclidean norm of the joint torques (N m)."""
+    relaxed: jax.Array
+    """() bool, the force QP relaxed its friction cone this tick."""
+    over_limit: jax.Array
+    """() bool, some joint torque exceeded its effort limit this tick."""
 
 
 def simulate_shaking(
@@ -27,10 +44,9 @@ def simulate_shaking(
     progress: bool | str = False,
     gains: dict | None = None,
     robot: RobotDescription = DEFAULT_ROBOT,
-) -> ClosedLoopLog:
-    """Shake ``robot`` for ``duration`` s from its keyframe; logs ``body_error`` (rad),
-    ``foot_slip`` (m, the largest horizontal displacement of a foot contact point from its
-    start), ``torque_norm`` (N m), ``relaxed`` and ``over_limit`` every tick.
+) -> ClosedLoopLog[ShakingLog]:
+    """Shake ``robot`` for ``duration`` s from its keyframe, logging a :class:`ShakingLog`
+    every tick.
 
     ``gains``: the WBLC gains pytree (default: ``config``'s). For many runs that differ
     only in gains or frequency, build one :func:`shaking_simulator` instead."""
@@ -70,13 +86,13 @@ def shaking_simulator(
         out = ctrl(qpos, qvel, refs, contact, gains=gains, previous=prev, snap=snap)
         dg = out.diagnostics
         slip = snap.data.site_xpos[points, :2] - points0.astype(snap.data.site_xpos.dtype)
-        logged = {
-            "body_error": jnp.linalg.norm(dg.task_errors["body_ori"]),
-            "foot_slip": jnp.max(jnp.linalg.norm(slip, axis=-1)),
-            "torque_norm": jnp.linalg.norm(out.torques),
-            "relaxed": dg.qp_relaxed,
-            "over_limit": jnp.any(dg.torque_over_limit),
-        }
+        logged = ShakingLog(
+            body_error=jnp.linalg.norm(dg.task_errors["body_ori"]),
+            foot_slip=jnp.max(jnp.linalg.norm(slip, axis=-1)),
+            torque_norm=jnp.linalg.norm(out.torques),
+            relaxed=dg.qp_relaxed,
+            over_limit=jnp.any(dg.torque_over_limit),
+        )
         return out.torques, out.qp_state, logged
 
     def simulate(duration, gains=None, frequency_hz=None, progress=False) -> ClosedLoopLog:
@@ -103,18 +119,18 @@ def shaking_simulator(
     return simulate
 
 
-def shaking_metrics(log: ClosedLoopLog) -> dict:
+def shaking_metrics(log: ClosedLoopLog[ShakingLog]) -> dict:
     """RMS and max body error, final foot slip, mean and max torque norm, QP relaxations,
     falls."""
     out = log.outputs
     return {
-        "final_foot_slip_m": float(out["foot_slip"][-1]),
+        "final_foot_slip_m": float(out.foot_slip[-1]),
         "fell": bool(log.fell),
         "simulated_s": float(log.time[-1]) if len(log.time) else 0.0,
-        "rms_body_error_rad": float(np.sqrt(np.mean(out["body_error"] ** 2))),
-        "max_body_error_rad": float(np.max(out["body_error"])),
-        "mean_torque_norm_Nm": float(np.mean(out["torque_norm"])),
-        "max_torque_norm_Nm": float(np.max(out["torque_norm"])),
-        "qp_relaxed_ticks": int(np.sum(out["relaxed"])),
-        "torque_over_limit_ticks": int(np.sum(out["over_limit"])),
+        "rms_body_error_rad": float(np.sqrt(np.mean(out.body_error**2))),
+        "max_body_error_rad": float(np.max(out.body_error)),
+        "mean_torque_norm_Nm": float(np.mean(out.torque_norm)),
+        "max_torque_norm_Nm": float(np.max(out.torque_norm)),
+        "qp_relaxed_ticks": int(np.sum(out.relaxed)),
+        "torque_over_limit_ticks": int(np.sum(out.over_limit)),
     }

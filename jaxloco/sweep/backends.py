@@ -226,8 +226,8 @@ class MJXBackend:
             def tick(carry, _):
                 s, o = carry
                 alive = ~s.fell
-                s, log = closed_loop_step(mx, ctrl.step, s, push, push_body, fall_height)
-                o = update_outcome(o, log, alive)
+                s, record = closed_loop_step(mx, ctrl.step, s, push, push_body, fall_height)
+                o = update_outcome(o, record.controller, alive)
                 o = mark_fallen(o, s.fell, s.fall_time - t0)
                 return (s, o), None
 

@@ -430,9 +430,7 @@ def run_limit_search(
         qvel_noise=search.qvel_noise,
         fall_height=search.fall_height,
     )
-    job = make_job(
-        spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body, robot=robot
-    )
+    job = make_job(spec, run_dir, backend, chunk_size, gait, physics, wblc, push_body, robot=robot)
     job = job.replace(planner=None if planner is None else str(planner))
     per_round = len(search.cells()) * search.replicas
     if workers == 0:

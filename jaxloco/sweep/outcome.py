@@ -12,6 +12,8 @@ import jax.numpy as jnp
 import numpy as np
 from flax import struct
 
+from jaxloco.locomotion.walking_log import WalkingLog
+
 # Columns a sweep writes per push (besides the push's own columns).
 FIELDS = (
     "recovered",
@@ -73,24 +75,22 @@ def init_outcome(controller_state) -> Outcome:
     )
 
 
-def update_outcome(o: Outcome, log: dict, alive) -> Outcome:
-    """Fold one tick's controller ``log`` in (nothing changes once ``alive`` is False)."""
-    offset = jnp.linalg.norm(log["com"][:2] - log["com_ref"][:2])
+def update_outcome(o: Outcome, log: WalkingLog, alive) -> Outcome:
+    """Fold one tick's walking ``log`` in (nothing changes once ``alive`` is False)."""
+    offset = jnp.linalg.norm(log.com[:2] - log.com_ref[:2])
 
     def grow(old, new):
         return jnp.where(alive, new, old)
 
     return o.replace(
-        step=grow(o.step, log["step"]),
-        replans=grow(o.replans, log["replans"]),
-        failed=grow(o.failed, log["failed_plans"]),
-        max_com_error=grow(o.max_com_error, jnp.maximum(o.max_com_error, log["com_error"])),
+        step=grow(o.step, log.step),
+        replans=grow(o.replans, log.replans),
+        failed=grow(o.failed, log.failed_plans),
+        max_com_error=grow(o.max_com_error, jnp.maximum(o.max_com_error, log.com_error)),
         max_com_offset=grow(o.max_com_offset, jnp.maximum(o.max_com_offset, offset)),
-        peak_torque_norm=grow(
-            o.peak_torque_norm, jnp.maximum(o.peak_torque_norm, log["torque_norm"])
-        ),
-        relaxed_ticks=o.relaxed_ticks + (alive & log["relaxed"]).astype(jnp.int32),
-        over_limit_ticks=o.over_limit_ticks + (alive & log["over_limit"]).astype(jnp.int32),
+        peak_torque_norm=grow(o.peak_torque_norm, jnp.maximum(o.peak_torque_norm, log.torque_norm)),
+        relaxed_ticks=o.relaxed_ticks + (alive & log.relaxed).astype(jnp.int32),
+        over_limit_ticks=o.over_limit_ticks + (alive & log.over_limit).astype(jnp.int32),
     )
 
 

@@ -150,7 +150,7 @@ def snapshot_walk(
                 break
         torques, cstate, log = step_fn(data.time, data.qpos.copy(), data.qvel.copy(), cstate)
         data.ctrl[:] = np.asarray(torques)
-        if push_times is None and int(log["step"]) == push_step:
+        if push_times is None and int(log.step) == push_step:
             step_start = float(cstate.gait.step_start)
             step_duration = float(cstate.gait.step_duration)
             support = step_duration - blend

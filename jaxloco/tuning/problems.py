@@ -334,7 +334,7 @@ def push_loss(
         def controller(t, qpos, qvel, cstate):
             torques, cstate, log = ctrl.step(t, qpos, qvel, cstate, gains=gains)
             up = _pelvis_up(qpos[3:7])
-            dcm = log["com"][:2] + log["com_vel"][:2] / omega
+            dcm = log.com[:2] + log.com_vel[:2] / omega
             if params.dcm_reference == "footstep":
                 dcm_error = _touchdown_dcm_offset(cstate.gait, dcm, t, omega) - offset0
             else:

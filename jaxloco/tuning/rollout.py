@@ -72,9 +72,8 @@ def mean_costs(
         pushes = PushArrays.none(dtype=state.data.qpos.dtype)
 
     def tick(s, _):
-        s, log = closed_loop_step(mx, controller, s, pushes, push_body, fall_height)
-        log.pop("force", None)
-        return s, log
+        s, record = closed_loop_step(mx, controller, s, pushes, push_body, fall_height)
+        return s, record.controller
 
     @jax.checkpoint
     def run_segment(s, _):
