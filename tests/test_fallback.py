@@ -17,6 +17,7 @@ from jaxloco.learning.fallback import (
     save_fallback_checkpoint,
 )
 from jaxloco.learning.starts import StartStates, uniform_states
+from jaxloco.planner import Planner
 
 
 @pytest.fixture(scope="module")
@@ -91,3 +92,16 @@ def test_a_fallback_planner_serves_plan_steps_under_jit(policies):
         jnp.asarray(planner.psp.nominal_state)
     )
     assert int(walk.num_safe_steps) == 12
+
+
+def test_every_shipped_policy_is_a_planner():
+    """Every kind a checkpoint loads as (learned, fallback, scaled) states the
+    :class:`Planner` protocol the walking controller relies on, and acts through it."""
+    state = jnp.asarray([0.05, 0.3, 0.0])
+    for name in SHIPPED_POLICIES:
+        planner = load_planner(shipped=name)
+        assert isinstance(planner, Planner), name
+        action = planner.policy(state)
+        assert action.shape == (3,) and np.all(np.isfinite(action)), name
+        np.testing.assert_allclose(planner.mean_action(state[None])[0], action, rtol=1e-5)
+    assert not isinstance(object(), Planner)

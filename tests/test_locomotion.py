@@ -19,7 +19,7 @@ from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.learning.checkpoint import load_planner
 from jaxloco.locomotion import GaitParams, make_swing, make_walking_controller, retarget_swing
 from jaxloco.locomotion import gait as gait_lib
-from jaxloco.locomotion.swing import KNOTS
+from jaxloco.locomotion.swing import KNOTS, Motion
 from jaxloco.planner import PSPParams
 from jaxloco.planner.psp import Reason
 from jaxloco.sim import mjx_loop
@@ -298,7 +298,7 @@ def test_touchdown_waits_for_a_late_foot_and_presses_it_down():
     waiting = tick(state, t_down, up)
     assert int(waiting.step) == 1
     ref = gait_lib.references(waiting, params, psp, t_down + 0.01, zero, zero)
-    assert float(ref.swing[0][2]) == pytest.approx(
+    assert float(ref.swing.pos[2]) == pytest.approx(
         float(state.target[2]) - params.late_landing_depth, abs=1e-12
     )
     assert float(ref.contact[landing]) == 0.0
@@ -484,7 +484,7 @@ def test_cam_reference_is_the_momentum_of_the_commanded_turn_and_the_arm_return(
     qd[3:6] = R.T @ np.array([0.0, 0.0, yaw_rate])  # world-z turn, in the base frame
     qd[list(arms.dof)] = rate * (np.asarray(ctrl.posture[ARM_TASK].pos) - q[list(arms.qpos)])
     snap = ctrl.wblc.snapshot(jnp.asarray(q, jnp.float32), jnp.zeros(model.nv, jnp.float32))
-    body = gait_lib.yaw_reference(jnp.float32(2.3), jnp.float32(yaw_rate), jnp.float32(0.4))
+    body = gait_lib.yaw_reference(Motion(jnp.float32(2.3), jnp.float32(yaw_rate), jnp.float32(0.4)))
     ref = _cam_reference(ctrl, snap, jnp.asarray(q, jnp.float32), body)
     expected = np.asarray(snap.centroidal_matrix[:3]) @ qd
     assert np.linalg.norm(expected) > 1.0  # a real momentum, not a trivial match

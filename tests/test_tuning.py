@@ -31,10 +31,10 @@ def test_gain_space_is_the_hand_set_gains_at_zero_and_positive_everywhere():
     g = space.gains(p, base)
     for task in base:
         for kind in ("kp", "kd"):
-            np.testing.assert_allclose(g[task][kind], base[task][kind])
+            np.testing.assert_allclose(getattr(g[task], kind), getattr(base[task], kind))
     g = space.gains({"com.kp": jnp.array([-50.0, 0.0, 1.0]), "body_ori.kd": p["body_ori.kd"]}, base)
-    assert np.all(np.asarray(g["com"]["kp"]) > 0)  # clipped at exp(-3), never zero or negative
-    np.testing.assert_allclose(g["com"]["kp"][1:], np.asarray(base["com"]["kp"][1:]) * [1, np.e])
+    assert np.all(np.asarray(g["com"].kp) > 0)  # clipped at exp(-3), never zero or negative
+    np.testing.assert_allclose(g["com"].kp[1:], np.asarray(base["com"].kp[1:]) * [1, np.e])
 
 
 def test_gain_space_rejects_bad_names():
@@ -54,18 +54,18 @@ def test_gain_space_bandwidth_scales_frequency_at_a_fixed_damping_ratio():
     assert p["body_ori.bandwidth"].shape == (1,) and space.task_gains == space.tuned
     c = 1.3
     g = space.gains(dict(p, **{"body_ori.bandwidth": jnp.array([np.log(c)])}), base)
-    kp0, kd0 = np.asarray(base["body_ori"]["kp"]), np.asarray(base["body_ori"]["kd"])
-    kp, kd = np.asarray(g["body_ori"]["kp"]), np.asarray(g["body_ori"]["kd"])
+    kp0, kd0 = np.asarray(base["body_ori"].kp), np.asarray(base["body_ori"].kd)
+    kp, kd = np.asarray(g["body_ori"].kp), np.asarray(g["body_ori"].kd)
     np.testing.assert_allclose(np.sqrt(kp), c * np.sqrt(kp0))  # natural frequency x c
     np.testing.assert_allclose(kd / (2 * np.sqrt(kp)), kd0 / (2 * np.sqrt(kp0)))  # damping
-    np.testing.assert_allclose(g["com"]["kd"], base["com"]["kd"])
+    np.testing.assert_allclose(g["com"].kd, base["com"].kd)
     values = tuned_values(space, dict(p, **{"body_ori.bandwidth": jnp.array([np.log(c)])}), base)
     assert values["body_ori"]["kp"] == pytest.approx(list(c * c * kp0))
     # d kp / d s = 2 kp at s = 0, d kd / d s = kd
-    dkp = jax.grad(lambda s: space.gains({**p, "body_ori.bandwidth": s}, base)["body_ori"]["kp"][0])
+    dkp = jax.grad(lambda s: space.gains({**p, "body_ori.bandwidth": s}, base)["body_ori"].kp[0])
     assert float(dkp(jnp.zeros(1))[0]) == pytest.approx(2 * kp0[0])
     per_row = GainSpace(("body_ori.bandwidth",), per_row=True).init(base)
-    assert per_row["body_ori.bandwidth"].shape == np.shape(base["body_ori"]["kp"])
+    assert per_row["body_ori.bandwidth"].shape == np.shape(base["body_ori"].kp)
     with pytest.raises(ValueError, match="already scales body_ori's kp and kd"):
         GainSpace(("body_ori.bandwidth", "body_ori.kd"))
 
@@ -93,7 +93,7 @@ def test_gain_space_tunes_replan_gamma_inside_zero_one():
     assert p["gait.replan_gamma"].shape == (1,)  # one number, whatever per_row says
     assert space.task_gains == ("com.kp",) and space.gait_numbers == ("replan_gamma",)
     assert float(space.gait_values(p, base_gait)["replan_gamma"]) == pytest.approx(0.5)
-    np.testing.assert_allclose(space.gains(p, base)["com"]["kp"], base["com"]["kp"])
+    np.testing.assert_allclose(space.gains(p, base)["com"].kp, base["com"].kp)
     for s, expected in (
         (np.log(3.0), 0.75),
         (-50.0, 1 / (1 + np.e**3)),

@@ -285,12 +285,12 @@ def test_one_tick_is_consistent(valkyrie):
         body = int(model.site_bodyid[site])
         jc = J.frame_jacobian(ctrl.mx, d, d.site_xpos[site], body)
         jdqd = J.frame_jdot_qdot(ctrl.mx, d, d.site_xpos[site], body)
-        kd = ctrl.default_gains()[f"{side}_contact"]["kd"]
+        kd = ctrl.default_gains()[f"{side}_contact"].kd
         np.testing.assert_allclose(jc @ dg.qdd_desired + jdqd, -kd * (jc @ v), atol=1e-6)
     com = ctrl.config.task("com")
     jcom = J.com_jacobian(ctrl.mx, d)
     gains = ctrl.default_gains()["com"]
-    desired = gains["kp"] * (refs["com"].pos - snap.com) + gains["kd"] * (0 - jcom @ v)
+    desired = gains.kp * (refs["com"].pos - snap.com) + gains.kd * (0 - jcom @ v)
     np.testing.assert_allclose(
         jcom @ dg.qdd_desired + J.com_jdot_qdot(ctrl.mx, d), desired, atol=1e-6
     )
@@ -491,12 +491,12 @@ def test_torque_gradients_wrt_gains_match_finite_differences(valkyrie):
     def loss(com_kp, body_kd):
         gains = {
             **base,
-            "com": {**base["com"], "kp": com_kp},
-            "body_ori": {**base["body_ori"], "kd": body_kd},
+            "com": base["com"].replace(kp=com_kp),
+            "body_ori": base["body_ori"].replace(kd=body_kd),
         }
         return w @ tick(q, v, refs, ctrl.initial_qp_state(), gains).torques
 
-    args = (base["com"]["kp"], base["body_ori"]["kd"])
+    args = (base["com"].kp, base["body_ori"].kd)
     grads = jax.grad(loss, argnums=(0, 1))(*args)
     assert all(bool(jnp.all(jnp.isfinite(g))) for g in grads)
     assert float(jnp.max(jnp.abs(grads[0]))) > 0

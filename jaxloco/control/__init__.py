@@ -8,7 +8,7 @@ from jaxloco.control.pinv import pinv_psd
 from jaxloco.control.presets import body_shaking_config, walking_config, wblc_config
 from jaxloco.control.segments import Segments
 from jaxloco.control.shaking import ShakingParams, shaking_reference
-from jaxloco.control.tasks import RobotSnapshot, TaskReference, TaskSpec, snapshot
+from jaxloco.control.tasks import PDGains, RobotSnapshot, TaskReference, TaskSpec, snapshot
 from jaxloco.control.wblc import (
     WBLC,
     FootSpec,
@@ -27,6 +27,7 @@ from jaxloco.control.wblc import (
 )
 
 __all__ = [
+    "PDGains",
     "WBLC",
     "FootSpec",
     "ForceQPParams",

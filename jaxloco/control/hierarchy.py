@@ -61,7 +61,7 @@ class HierarchyResult:
     """(nv, nv) lower-triangular ``L`` with ``A = L L'``."""
     mass_cholesky_inverse: jax.Array
     """(nv, nv) ``L^-1`` (lower triangular)."""
-    task_residuals: tuple
+    task_residuals: tuple[jax.Array, ...]
     """Per level, ``e_k - J_k qdd_[task]``: what the level could not achieve (0 if met)."""
 
     @property

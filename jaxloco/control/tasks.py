@@ -108,7 +108,8 @@ class RobotSnapshot:
     mass_matrix: jax.Array
     coriolis: jax.Array
     gravity: jax.Array
-    motion: tuple
+    motion: jac.BodyMotion
+    """Every body's twist and ``Jdot qd`` (:func:`~jaxloco.dynamics.jacobians.body_motion`)."""
     centroidal_matrix: jax.Array
     centroidal_bias: jax.Array
     mass_cholesky: jax.Array
@@ -150,7 +151,7 @@ def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
 
 
 @dataclasses.dataclass(frozen=True)
-class _Index:
+class TaskIndex:
     """Static model indices of one task."""
 
     site: int = -1
@@ -161,14 +162,14 @@ class _Index:
     """The site's rotation in its body (w, x, y, z); None where the site is body-aligned."""
 
 
-def task_index(model: mujoco.MjModel, spec: TaskSpec) -> _Index:
+def task_index(model: mujoco.MjModel, spec: TaskSpec) -> TaskIndex:
     if spec.frame:
         site = mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_SITE, spec.frame)
         if site < 0:
             raise ValueError(f"TaskSpec {spec.name!r}: no site {spec.frame!r} in the model")
         quat = np.asarray(model.site_quat[site], float)
         aligned = np.allclose(quat, [1, 0, 0, 0])
-        return _Index(
+        return TaskIndex(
             site=site,
             body=int(model.site_bodyid[site]),
             site_quat=None if aligned else tuple(float(x) for x in quat / np.linalg.norm(quat)),
@@ -185,14 +186,14 @@ def task_index(model: mujoco.MjModel, spec: TaskSpec) -> _Index:
             ):
                 raise ValueError(f"TaskSpec {spec.name!r}: joint {name!r} is not 1-dof")
             ids.append(j)
-        return _Index(
+        return TaskIndex(
             qpos=tuple(int(model.jnt_qposadr[j]) for j in ids),
             dof=tuple(int(model.jnt_dofadr[j]) for j in ids),
         )
-    return _Index()
+    return TaskIndex()
 
 
-def frame_quat(d: mjx.Data, index: _Index) -> jax.Array:
+def frame_quat(d: mjx.Data, index: TaskIndex) -> jax.Array:
     """(4,) world orientation of a task's site: its body's, turned by the site's own rotation."""
     q = d.xquat[index.body]
     if index.site_quat is None:
@@ -200,7 +201,7 @@ def frame_quat(d: mjx.Data, index: _Index) -> jax.Array:
     return quat_mul(q, jnp.asarray(index.site_quat, q.dtype))
 
 
-def current_position(mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSnapshot):
+def current_position(mx: mjx.Model, spec: TaskSpec, index: TaskIndex, snap: RobotSnapshot):
     """The task's current position (quaternion for orientations, momentum for CAM)."""
     d = snap.data
     if spec.kind == "com":
@@ -216,11 +217,11 @@ def current_position(mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSn
 
 
 def task_terms(
-    mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSnapshot, ref: TaskReference, gains
+    mx: mjx.Model, spec: TaskSpec, index: TaskIndex, snap: RobotSnapshot, ref: TaskReference, gains
 ) -> TaskTerms:
     """Jacobian, ``Jdot qd`` and desired acceleration of one task (rows scaled by weight)."""
     d = snap.data
-    kp, kd = gains["kp"], gains["kd"]
+    kp, kd = gains.kp, gains.kd
     dtype = d.qvel.dtype
     if spec.kind == "com":
         j = snap.centroidal_matrix[3:] / snap.total_mass  # = the CoM Jacobian
@@ -257,18 +258,29 @@ def task_terms(
     return TaskTerms(w * j, w * jdqd, w * desired, err)
 
 
-def default_gains(specs) -> dict:
-    """``{task name: {"kp": (dim,), "kd": (dim,)}}`` from the specs' defaults."""
+@struct.dataclass
+class PDGains:
+    """One task's PD gains as traced data (the WBLC's ``gains`` argument holds one per
+    task, ``{task name: PDGains}``, so they can be tuned and differentiated)."""
+
+    kp: jax.Array
+    """(dim,) stiffness per task row (1/s^2; the CAM task's is a rate, 1/s)."""
+    kd: jax.Array
+    """(dim,) damping per task row (1/s)."""
+
+
+def default_gains(specs) -> dict[str, PDGains]:
+    """``{task name: PDGains}`` from the specs' defaults (each broadcast to the task's rows)."""
     return {
-        s.name: {
-            "kp": jnp.broadcast_to(jnp.asarray(s.kp, float), (s.dim,)),
-            "kd": jnp.broadcast_to(jnp.asarray(s.kd, float), (s.dim,)),
-        }
+        s.name: PDGains(
+            kp=jnp.broadcast_to(jnp.asarray(s.kp, float), (s.dim,)),
+            kd=jnp.broadcast_to(jnp.asarray(s.kd, float), (s.dim,)),
+        )
         for s in specs
     }
 
 
-def hold_reference(mx: mjx.Model, spec: TaskSpec, index: _Index, snap: RobotSnapshot):
+def hold_reference(mx: mjx.Model, spec: TaskSpec, index: TaskIndex, snap: RobotSnapshot):
     """A reference that holds the task where it is now, at rest (weight 1)."""
     dtype = snap.data.qvel.dtype
     pos = current_position(mx, spec, index, snap)

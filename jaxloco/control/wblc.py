@@ -44,7 +44,10 @@ from jaxloco.control.hierarchy import INVERSES, HierarchyResult, prioritized_acc
 from jaxloco.control.pinv import pinv_psd
 from jaxloco.control.segments import Segments
 from jaxloco.control.tasks import (
+    PDGains,
     RobotSnapshot,
+    TaskIndex,
+    TaskReference,
     TaskSpec,
     default_gains,
     hold_reference,
@@ -210,7 +213,8 @@ class WBLC:
     model: mujoco.MjModel
     mx: mjx.Model
     config: WBLCConfig
-    indices: dict
+    indices: dict[str, TaskIndex]
+    """Each task's static model indices (sites, bodies, joints), by task name."""
     point_sites: tuple[int, ...]
     foot_of_point: tuple[int, ...]
     selection: jax.Array
@@ -224,13 +228,14 @@ class WBLC:
     base_rotation_dofs: tuple[int, ...]
     """The free joint's rotational dofs (empty for a fixed base)."""
 
-    def default_gains(self) -> dict:
+    def default_gains(self) -> dict[str, PDGains]:
+        """``{task name: PDGains}``: the config's default gains as traced data."""
         return default_gains(self.config.tasks)
 
     def snapshot(self, qpos, qvel) -> RobotSnapshot:
         return snapshot(self.mx, qpos, qvel)
 
-    def hold_references(self, qpos, qvel=None) -> dict:
+    def hold_references(self, qpos, qvel=None) -> dict[str, TaskReference]:
         """References that hold every task where it is at ``qpos`` (zero velocity)."""
         qvel = jnp.zeros(self.mx.nv) if qvel is None else qvel
         snap = self.snapshot(qpos, qvel)
@@ -379,7 +384,9 @@ def wblc_tick(
     return WBLCOutput(torques.torques, diagnostics, sol.warm_start)
 
 
-def task_stage(ctrl: WBLC, snap: RobotSnapshot, refs: dict, contact, gains: dict) -> dict:
+def task_stage(
+    ctrl: WBLC, snap: RobotSnapshot, refs: dict, contact, gains: dict[str, PDGains]
+) -> dict:
     """Stage 1: the terms (Jacobian, ``Jdot qd``, desired acceleration) of every task the
     hierarchy or the force QP uses, by task name. A contact task's rows follow the contact
     set, not its reference; the CoM command's horizontal part is bounded by

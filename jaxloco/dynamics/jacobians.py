@@ -23,6 +23,7 @@ point and CoM Jacobians ``(3, nv)``. Call :func:`smooth` (or ``mjx.forward``) fi
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import jax
 import jax.numpy as jnp
@@ -111,7 +112,16 @@ def screw_axes(m: mjx.Model, d: mjx.Data) -> jax.Array:
     return jnp.stack(rows)
 
 
-def body_motion(m: mjx.Model, d: mjx.Data):
+class BodyMotion(NamedTuple):
+    """Every body's velocity terms, in world coordinates at the world origin."""
+
+    twists: jax.Array
+    """(nbody, 6) spatial twists ``[angular; linear]``."""
+    bias_accelerations: jax.Array
+    """(nbody, 6) velocity-product accelerations ``Jdot_b qd``."""
+
+
+def body_motion(m: mjx.Model, d: mjx.Data) -> BodyMotion:
     """Per body: spatial twists ``(nbody, 6)`` and velocity-product accelerations
     ``Jdot_b qd`` ``(nbody, 6)``, both in world coordinates at the world origin."""
     before, supports = tree_masks(m)
@@ -120,7 +130,7 @@ def body_motion(m: mjx.Model, d: mjx.Data):
     v_before = jnp.asarray(before, s.dtype) @ s_qd  # twist preceding each dof
     terms = se3.ad_apply(v_before, s_qd)  # ad_{V_i^-} S_i qd_i
     sup = jnp.asarray(supports, s.dtype)
-    return sup @ s_qd, sup @ terms
+    return BodyMotion(sup @ s_qd, sup @ terms)
 
 
 def frame_jacobian_spatial(m: mjx.Model, d: mjx.Data, body_id: int) -> jax.Array:

@@ -32,7 +32,7 @@ from flax import struct
 
 from jaxloco.learning.checkpoint import FALLBACK_FILE, checkpoint_digest, load_planner
 from jaxloco.learning.evaluation import over_states
-from jaxloco.planner import PSPParams, plan_steps
+from jaxloco.planner import Planner, PSPParams, plan_steps
 
 FORMAT_VERSION = 1
 
@@ -43,9 +43,10 @@ class FallbackPlanner:
     fallback's. :class:`~jaxloco.learning.LearnedPlanner`'s interface (``policy``,
     ``mean_action``, ``value``, ``psp``); a pytree, so it can be passed into ``jit``."""
 
-    primary: object
+    primary: Planner
     """A planner (``LearnedPlanner``, ``PPOPlanner``...)."""
-    fallback: object
+    fallback: Planner
+    """The planner whose action stands where the primary's look-ahead fails."""
     psp: PSPParams = struct.field(pytree_node=False)
     """The planner parameters of the look-ahead (each policy keeps its own action box)."""
     steps: int = struct.field(pytree_node=False, default=1)

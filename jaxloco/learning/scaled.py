@@ -16,7 +16,7 @@ from flax import struct
 from jaxloco.learning.checkpoint import SCALED_FILE, checkpoint_digest, load_planner
 from jaxloco.learning.evaluation import over_states
 from jaxloco.learning.starts import StartStates
-from jaxloco.planner import FroudeScale, PSPParams, scale_psp
+from jaxloco.planner import FroudeScale, Planner, PSPParams, scale_psp
 
 
 @struct.dataclass
@@ -27,7 +27,7 @@ class ScaledPlanner:
     actions brought back; ``psp`` is the planner's parameters at this size. The planners'
     interface (``policy``, ``mean_action``, ``value``, ``psp``); a pytree."""
 
-    planner: object
+    planner: Planner
     """The planner at the reference size (``LearnedPlanner``, ``FallbackPlanner``...)."""
     scale: FroudeScale = struct.field(pytree_node=False)
 

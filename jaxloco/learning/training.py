@@ -26,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from jaxloco import validation as v
+from jaxloco.learning import policy as pol
 from jaxloco.learning import rbf
 from jaxloco.learning.actor_critic import (
     ActorCriticConfig,
@@ -124,7 +125,7 @@ class TrainConfig:
 class TrainResult:
     state: TrainState
     """The final training state."""
-    best_params: object
+    best_params: pol.ActorCriticParams
     """The weights with the best evaluated basin (the final ones if never evaluated),
     after refinement when ``config.refine.iterations > 0``."""
     best_basin: float | None

@@ -2,7 +2,7 @@
 walking controller that drives WBLC with the learned step planner (paper Section V-B/C)."""
 
 from jaxloco.locomotion.gait import GaitOverrides, GaitParams, GaitReferences, GaitState
-from jaxloco.locomotion.swing import SwingSpline, make_swing, retarget_swing
+from jaxloco.locomotion.swing import Motion, SwingSpline, make_swing, retarget_swing
 from jaxloco.locomotion.walking import WalkingController, WalkingState, make_walking_controller
 from jaxloco.locomotion.walking_log import WalkingLog
 
@@ -11,6 +11,7 @@ __all__ = [
     "GaitParams",
     "GaitReferences",
     "GaitState",
+    "Motion",
     "SwingSpline",
     "WalkingController",
     "WalkingLog",

@@ -58,7 +58,7 @@ from flax import struct
 
 from jaxloco import validation as v
 from jaxloco.dynamics import se3
-from jaxloco.locomotion.swing import SwingSpline, make_swing, quintic, retarget_swing
+from jaxloco.locomotion.swing import Motion, SwingSpline, make_swing, quintic, retarget_swing
 from jaxloco.planner import lipm
 from jaxloco.planner.psp import INFEASIBLE, PSPParams, Reason, plan_apex_components
 from jaxloco.planner.scaling import FroudeScale
@@ -362,17 +362,18 @@ class GaitReferences:
     """(2,) contact weights of (left, right) in [0, 1]."""
     swinging: jax.Array
     """(2,) 1 for a foot whose swing tasks are on."""
-    com: tuple
-    """(pos, vel, acc), each (3,)."""
-    swing: tuple
-    """(pos, vel, acc) of the swing foot's contact frame (world)."""
+    com: Motion
+    """The CoM's reference, each (3,) (m, m/s, m/s^2)."""
+    swing: Motion
+    """The swing foot's contact-frame reference, world, each (3,)."""
     swing_foot: jax.Array
-    swing_yaw: tuple
-    """(yaw, yaw rate, yaw acceleration) of the swing foot."""
-    body_yaw: tuple
-    """(yaw, rate, acceleration) of pelvis and torso."""
+    """() int32, the swing foot: 0 left, 1 right."""
+    swing_yaw: Motion
+    """The swing foot's yaw (rad), yaw rate and yaw acceleration, scalars."""
+    body_yaw: Motion
+    """The pelvis' and torso's yaw (rad), rate and acceleration, scalars."""
     com_error: jax.Array
-    """Eq. 33's error norm."""
+    """() Eq. 33's error norm."""
 
 
 def _smoothstep(u):
@@ -463,8 +464,8 @@ def init_gait(
     )
 
 
-def com_reference(state: GaitState, params: GaitParams, psp: PSPParams, t):
-    """Desired CoM (pos, vel, acc), each (3,), at time ``t``."""
+def com_reference(state: GaitState, params: GaitParams, psp: PSPParams, t) -> Motion:
+    """Desired CoM position, velocity and acceleration, each (3,), at time ``t``."""
     w = psp.omega
     z = state.stance_pos[2] + state.com_height
     # START: quintic to the first lift-off state; the height settles with it.
@@ -484,7 +485,7 @@ def com_reference(state: GaitState, params: GaitParams, psp: PSPParams, t):
     pos = jnp.where(walking, jnp.append(lp, z), jnp.append(qp, zp))
     vel = jnp.where(walking, jnp.append(lv, 0.0), jnp.append(qv, zv))
     acc = jnp.where(walking, jnp.append(la, 0.0), jnp.append(qa, za))
-    return pos, vel, acc
+    return Motion(pos, vel, acc)
 
 
 def capture_step(params: GaitParams, w, rel, vel, remaining):
@@ -811,7 +812,7 @@ def references(
 
     s, ds, dds = _smoothstep(elapsed / state.step_duration)
     dyaw = state.body_yaw1 - state.body_yaw0
-    body_yaw = (
+    body_yaw = Motion(
         state.body_yaw0 + dyaw * s,
         dyaw * ds / state.step_duration,
         dyaw * dds / state.step_duration**2,
@@ -819,7 +820,7 @@ def references(
     swing_t = (t - state.swing.t0) / state.swing.duration
     u, du, ddu = _smoothstep(swing_t)
     fyaw = state.next_heading - state.swing_yaw0
-    swing_yaw = (
+    swing_yaw = Motion(
         state.swing_yaw0 + fyaw * u,
         fyaw * du / state.swing.duration,
         fyaw * ddu / state.swing.duration**2,
@@ -831,7 +832,7 @@ def references(
         contact=contact,
         swinging=swinging,
         com=com_reference(state, params, psp, t),
-        swing=(swing_pos, swing_vel, swing_acc),
+        swing=Motion(swing_pos, swing_vel, swing_acc),
         swing_foot=swing_foot,
         swing_yaw=swing_yaw,
         body_yaw=body_yaw,
@@ -839,7 +840,10 @@ def references(
     )
 
 
-def yaw_reference(yaw, rate, acc):
-    """Quaternion, angular velocity and acceleration of a yaw-only orientation."""
-    zero = jnp.zeros_like(yaw)
-    return se3.yaw_quat(yaw), jnp.stack([zero, zero, rate]), jnp.stack([zero, zero, acc])
+def yaw_reference(yaw: Motion) -> Motion:
+    """Quaternion (4,), angular velocity and acceleration (3,) of a yaw-only orientation
+    from its yaw (rad), rate and acceleration."""
+    zero = jnp.zeros_like(yaw.pos)
+    return Motion(
+        se3.yaw_quat(yaw.pos), jnp.stack([zero, zero, yaw.vel]), jnp.stack([zero, zero, yaw.acc])
+    )

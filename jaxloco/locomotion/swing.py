@@ -21,10 +21,24 @@ landing heights (see :func:`make_swing`): there the vertical velocity and accele
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+
+
+class Motion(NamedTuple):
+    """A point of a reference trajectory: position (or orientation), velocity and
+    acceleration at one time. Positions ``(3,)`` in m, m/s, m/s^2; a yaw reference
+    (:func:`~jaxloco.locomotion.gait.yaw_reference`) holds a ``(4,)`` quaternion, and the
+    angular velocity and acceleration ``(3,)`` (rad/s, rad/s^2); a planar one scalars."""
+
+    pos: jax.Array
+    vel: jax.Array
+    acc: jax.Array
+
 
 KNOTS = np.array([0, 0, 0, 0, 0.25, 0.5, 0.75, 1, 1, 1, 1], dtype=np.float64)
 DEGREE = 3
@@ -95,7 +109,7 @@ class SwingSpline:
     t0: jax.Array
     duration: jax.Array
 
-    def evaluate(self, t):
+    def evaluate(self, t) -> Motion:
         """Position, velocity and acceleration (3,) each at time ``t`` (held after the end)."""
         duration = jnp.maximum(self.duration, 1e-3)
         u = jnp.clip((t - self.t0) / duration, 0.0, 1.0)
@@ -112,7 +126,7 @@ class SwingSpline:
         before = t < self.t0
         xyd = jnp.where(before, 0.0, xyd)
         xydd = jnp.where(before, 0.0, xydd)
-        return jnp.append(xy, z), jnp.append(xyd, zd), jnp.append(xydd, zdd)
+        return Motion(jnp.append(xy, z), jnp.append(xyd, zd), jnp.append(xydd, zdd))
 
 
 def make_swing(start_pos, target, t0, duration, mid_height, start_vel=None, start_acc=None):

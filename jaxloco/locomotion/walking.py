@@ -19,13 +19,15 @@ from flax import struct
 
 from jaxloco.control.force_qp import ForceQPState
 from jaxloco.control.presets import foot_task, walking_config
+from jaxloco.control.tasks import TaskReference
 from jaxloco.control.tasks import snapshot as robot_snapshot
 from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
-from jaxloco.learning.checkpoint import LearnedPlanner, load_planner
+from jaxloco.learning.checkpoint import load_planner
 from jaxloco.learning.scaled import ScaledPlanner, planner_at_height
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.gait import GaitParams, GaitState
 from jaxloco.locomotion.walking_log import WalkingLog
+from jaxloco.planner.protocol import Planner
 from jaxloco.robots import DEFAULT_ROBOT, RobotDescription, check_model, robot_scale
 
 ARM_TASK = "arms"
@@ -50,11 +52,16 @@ class WalkingController:
     """Build with :func:`make_walking_controller`."""
 
     wblc: WBLC
+    """The whole-body controller (the walking hierarchy)."""
     gait_params: GaitParams
-    planner: LearnedPlanner
-    posture: dict
-    """Hold references of the joint-posture tasks (the keyframe the robot starts in)."""
+    """The gait's numbers at the robot's size."""
+    planner: Planner
+    """The step policy (any :class:`~jaxloco.planner.protocol.Planner`), at the robot's size."""
+    posture: dict[str, TaskReference]
+    """Hold references of every task by name (the keyframe the robot starts in); the
+    gait overwrites the CoM, body, CAM and swing-foot ones every tick."""
     foot_sites: tuple[int, int]
+    """Site ids of the (left, right) contact frames."""
     robot: RobotDescription
     """The robot whose model this controller is for."""
 
@@ -104,20 +111,20 @@ class WalkingController:
         )
         r = gait_lib.references(g, params, psp, t, snap.com, snap.com_vel)
         refs = dict(self.posture)
-        refs["com"] = refs["com"].replace(pos=r.com[0], vel=r.com[1], acc=r.com[2])
-        body = gait_lib.yaw_reference(*r.body_yaw)
+        refs["com"] = refs["com"].replace(pos=r.com.pos, vel=r.com.vel, acc=r.com.acc)
+        body = gait_lib.yaw_reference(r.body_yaw)
         for name in ("pelvis_ori", "body_ori"):
-            refs[name] = refs[name].replace(pos=body[0], vel=body[1], acc=body[2])
+            refs[name] = refs[name].replace(pos=body.pos, vel=body.vel, acc=body.acc)
         refs[wblc.config.cam_task] = _cam_reference(self, snap, qpos, body)
-        swing_ori = gait_lib.yaw_reference(*r.swing_yaw)
+        swing_ori = gait_lib.yaw_reference(r.swing_yaw)
         for k in range(2):
             on = r.swinging[k]
             pos_task, ori_task = foot_task(k, "foot_pos"), foot_task(k, "foot_ori")
             refs[pos_task] = refs[pos_task].replace(
-                pos=r.swing[0], vel=r.swing[1], acc=r.swing[2], weight=on
+                pos=r.swing.pos, vel=r.swing.vel, acc=r.swing.acc, weight=on
             )
             refs[ori_task] = refs[ori_task].replace(
-                pos=swing_ori[0], vel=swing_ori[1], acc=swing_ori[2], weight=on
+                pos=swing_ori.pos, vel=swing_ori.vel, acc=swing_ori.acc, weight=on
             )
         out = wblc(qpos, qvel, refs, r.contact, gains=gains, previous=state.qp, snap=snap)
         log = WalkingLog.of(snap.com, snap.com_vel, feet, g, r, out)
@@ -141,13 +148,13 @@ def _cam_reference(ctrl: WalkingController, snap, qpos, body_yaw):
     world_z_in_base = snap.data.xmat[base_body][2]  # free-joint angular velocity is local
     k_per_yaw_rate = a_ang[:, base_dof + 3 : base_dof + 6] @ world_z_in_base
     ref = ctrl.posture[cfg.cam_task]
-    pos = k_per_yaw_rate * body_yaw[1][2]
+    pos = k_per_yaw_rate * body_yaw.vel[2]
     rate = ctrl.gait_params.arm_return_rate
     if ARM_TASK in ctrl.wblc.indices and ARM_TASK in ctrl.posture and rate > 0:
         arms = ctrl.wblc.indices[ARM_TASK]
         qd_back = rate * (ctrl.posture[ARM_TASK].pos - qpos[jnp.asarray(arms.qpos)])
         pos = pos + a_ang[:, jnp.asarray(arms.dof)] @ qd_back
-    return ref.replace(pos=pos, acc=k_per_yaw_rate * body_yaw[2][2])
+    return ref.replace(pos=pos, acc=k_per_yaw_rate * body_yaw.acc[2])
 
 
 def robot_gait(
@@ -174,15 +181,15 @@ def make_walking_controller(
     model: mujoco.MjModel,
     config: WBLCConfig | None = None,
     gait: GaitParams | None = None,
-    planner: LearnedPlanner | None = None,
+    planner: Planner | None = None,
     keyframe_qpos=None,
     robot: RobotDescription = DEFAULT_ROBOT,
 ) -> WalkingController:
     """A walking controller for ``model``, a model of ``robot``: WBLC ``config`` (default:
     the robot's walking hierarchy), gait numbers (default: :func:`robot_gait`) and the step
     ``planner`` (default: :func:`robot_planner`, ``load_planner()``'s Algorithm 1 RL-PSP
-    policy with the refined one as its fallback, scaled to the robot's size; any planner
-    with ``policy`` and ``psp``). ``keyframe_qpos`` sets the joint postures the
+    policy with the refined one as its fallback, scaled to the robot's size; any
+    :class:`~jaxloco.planner.protocol.Planner`). ``keyframe_qpos`` sets the joint postures the
     posture tasks hold (default: the robot's keyframe). The planner walks at
     ``gait.com_height`` (its ``psp.h`` is replaced unless that is None)."""
     check_model(robot, model)

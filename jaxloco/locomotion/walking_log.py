@@ -80,7 +80,7 @@ class WalkingLog:
         return cls(
             com=com,
             com_vel=com_vel,
-            com_ref=refs.com[0],
+            com_ref=refs.com.pos,
             com_error=refs.com_error,
             contact=refs.contact,
             stance=gait.stance,
@@ -95,7 +95,7 @@ class WalkingLog:
             failed_plans=gait.failed_plans,
             heading=gait.heading,
             feet=feet,
-            swing_ref=refs.swing[0],
+            swing_ref=refs.swing.pos,
             torque_norm=jnp.linalg.norm(out.torques),
             relaxed=out.diagnostics.qp_relaxed,
             over_limit=jnp.any(out.diagnostics.torque_over_limit),

@@ -3,6 +3,7 @@
 from jaxloco.planner import lipm, steering
 from jaxloco.planner.lookahead import action_grid, make_lookahead_policy, nominal_distance_value
 from jaxloco.planner.multistep import ComTrajectory, FootstepPlan, plan_steps, sample_com_trajectory
+from jaxloco.planner.protocol import Planner
 from jaxloco.planner.psp import (
     INFEASIBLE,
     SAFETY_MARGIN_NAMES,
@@ -26,6 +27,7 @@ __all__ = [
     "FroudeScale",
     "FootstepPlan",
     "PSPParams",
+    "Planner",
     "Reason",
     "StepPlan",
     "StepValidity",

@@ -26,7 +26,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import batch as mj_batch
 from mujoco import mjx
 
-from jaxloco.locomotion.walking import WalkingController
+from jaxloco.locomotion.walking import WalkingController, WalkingState
 from jaxloco.runtime import single_thread_compiler_options
 from jaxloco.sim.mjx_loop import LoopState, closed_loop_step
 from jaxloco.sim.push import PushArrays, push_force
@@ -41,7 +41,8 @@ class ChunkStarts:
     times: np.ndarray
     physics: np.ndarray
     """``mjSTATE_INTEGRATION`` rows."""
-    controller: object
+    controller: WalkingState
+    """Each run's walking-controller state (leading axis: runs)."""
     pushes: PushArrays
     """Each run's push, fields of shape (B,), world frame."""
 
@@ -54,7 +55,7 @@ class TreeLayout:
     Not ``jax.flatten_util.ravel_pytree``: that casts every leaf to one common dtype, and
     the outcome's integer counters and boolean flags keep their own here."""
 
-    treedef: object
+    treedef: jax.tree_util.PyTreeDef
     shapes: tuple[tuple[int, ...], ...]
     dtypes: tuple[str, ...]
 

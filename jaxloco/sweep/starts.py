@@ -22,7 +22,7 @@ import mujoco
 import numpy as np
 
 from jaxloco.locomotion.gait import GaitOverrides
-from jaxloco.locomotion.walking import WalkingController
+from jaxloco.locomotion.walking import WalkingController, WalkingState
 
 NUM_TURNS = 64
 """Length of the per-step heading-change array every sweep controller gets (a static
@@ -40,7 +40,7 @@ class WalkSnapshots:
     """Simulated time of each snapshot (s)."""
     physics: np.ndarray
     """(P, nstate) ``mjSTATE_INTEGRATION`` rows."""
-    controller: object
+    controller: WalkingState
     """Controller states, leading axis P."""
     step_start: float
     step_duration: float

@@ -1,6 +1,6 @@
 """Tunable WBLC gains: a pytree of unconstrained parameters, kept positive by construction.
 
-The WBLC takes its gains as data (``{task: {"kp": (dim,), "kd": (dim,)}}``, see
+The WBLC takes its gains as data (``{task: PDGains}``, see
 :func:`jaxloco.control.tasks.default_gains`), so they can be traced and differentiated.
 A :class:`GainSpace` says which of them are tuned and how:
 
@@ -117,7 +117,9 @@ class GainSpace:
         for name in self.tuned:
             task, kind = self.split(name)
             per_row = self.per_row and task != GAIT
-            rows = base_gains[task]["kp" if kind == BANDWIDTH else kind] if per_row else None
+            rows = (
+                getattr(base_gains[task], "kp" if kind == BANDWIDTH else kind) if per_row else None
+            )
             size = np.shape(rows)[0] if per_row else 1
             out[name] = jnp.zeros(size, dtype)
         return out
@@ -125,15 +127,17 @@ class GainSpace:
     def gains(self, params: dict, base_gains: dict) -> dict:
         """The WBLC gains pytree for ``params`` (differentiable)."""
         self.check(base_gains)
-        gains = {task: dict(g) for task, g in base_gains.items()}
+        gains = dict(base_gains)
         for name in self.task_gains:
             task, kind = self.split(name)
             s = jnp.clip(params[name], -self.max_log_scale, self.max_log_scale)
             # bandwidth: kp ~ omega^2 and kd ~ omega at a fixed damping ratio.
             powers = {"kp": 2.0, "kd": 1.0} if kind == BANDWIDTH else {kind: 1.0}
+            scaled = {}
             for k, power in powers.items():
-                base = jnp.asarray(gains[task][k])
-                gains[task][k] = base * jnp.exp(power * s).astype(base.dtype)
+                base = jnp.asarray(getattr(gains[task], k))
+                scaled[k] = base * jnp.exp(power * s).astype(base.dtype)
+            gains[task] = gains[task].replace(**scaled)
         return gains
 
     def gait_values(self, params: dict, base_gait: dict) -> dict:
@@ -152,7 +156,10 @@ class GainSpace:
 
 
 def tuned_values(space: GainSpace, params: dict, base_gains: dict) -> dict:
-    """``{task: {"kp": [...], "kd": [...]}}`` of the tuned tasks, as plain lists."""
+    """``{task: {"kp": [...], "kd": [...]}}`` of the tuned tasks as plain lists: the form
+    a gains file holds (:func:`~jaxloco.control.gains.save_gains`)."""
     gains = space.gains(params, base_gains)
     tasks = sorted({space.split(n)[0] for n in space.task_gains})
-    return {t: {k: np.asarray(gains[t][k], float).tolist() for k in GAIN_KINDS} for t in tasks}
+    return {
+        t: {k: np.asarray(getattr(gains[t], k), float).tolist() for k in GAIN_KINDS} for t in tasks
+    }
