@@ -5,13 +5,14 @@
     jaxloco phase-portrait planner.h=0.95 --multirun policy=lookahead,nominal
     jaxloco phase-portrait --cfg job   # hydra's own flags work too
 
-Each experiment is a hydra app in the repository's ``experiments/`` folder (found next to
-the package, or at ``$JAXLOCO_EXPERIMENTS_DIR``); everything after the subcommand is passed
-to hydra unchanged.
+Each experiment is a hydra app in the repository's ``experiments/`` folder, installed as
+the package ``jaxloco.experiments`` (or at ``$JAXLOCO_EXPERIMENTS_DIR``); everything after
+the subcommand is passed to hydra unchanged.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import runpy
 import sys
@@ -21,12 +22,25 @@ USAGE = "usage: jaxloco EXPERIMENT [hydra overrides and flags ...]"
 
 
 def experiments_dir() -> Path:
+    """The experiments' folder: ``$JAXLOCO_EXPERIMENTS_DIR`` if set, else the installed
+    package ``jaxloco.experiments`` (the repository's ``experiments/``), else
+    ``experiments/`` next to the package (a source tree not installed)."""
     env = os.environ.get("JAXLOCO_EXPERIMENTS_DIR")
-    path = Path(env) if env else Path(__file__).resolve().parent.parent / "experiments"
+    if env:
+        path = Path(env)
+    else:
+        try:
+            spec = importlib.util.find_spec("jaxloco.experiments")
+        except ImportError:
+            spec = None
+        if spec is not None and spec.submodule_search_locations:
+            path = Path(next(iter(spec.submodule_search_locations)))
+        else:
+            path = Path(__file__).resolve().parent.parent / "experiments"
     if not path.is_dir():
         raise SystemExit(
-            f"jaxloco: no experiments folder at {path}. Install jaxloco from a checkout "
-            "(pip install -e .) or set JAXLOCO_EXPERIMENTS_DIR to the repository's experiments/."
+            f"jaxloco: no experiments folder at {path}: reinstall jaxloco, or set "
+            "JAXLOCO_EXPERIMENTS_DIR to the repository's experiments/."
         )
     return path
 

@@ -1,5 +1,6 @@
 """The package as installed: every subpackage listed in pyproject.toml, and a wheel that
-carries the assets, so a non-editable install loads the model and the shipped policy."""
+carries the assets and the experiments, so a non-editable install loads the model and the
+shipped policy and its ``jaxloco`` command lists and runs the experiments."""
 
 import os
 import subprocess
@@ -20,7 +21,7 @@ def test_every_subpackage_is_listed():
         for p in (ROOT / "jaxloco").rglob("__init__.py")
         if "__pycache__" not in p.parts
     }
-    assert found | {"jaxloco.assets"} == listed
+    assert found | {"jaxloco.assets", "jaxloco.experiments"} == listed
 
 
 def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
@@ -39,6 +40,8 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
         "jaxloco/assets/policies/rl_psp_refined/config.json",
         "jaxloco/assets/policies/rl_psp_fallback/fallback.json",
         "jaxloco/assets/gains/body_shaking_h1_bandwidth.json",
+        "jaxloco/experiments/push_sweep.py",
+        "jaxloco/experiments/walk_steer.py",
     ):
         assert asset in names
     target = tmp_path / "site"
@@ -79,3 +82,22 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
     assert Path(assets).resolve() == (target / "jaxloco" / "assets").resolve()
     assert nv == "34"
     assert planner == "FallbackPlanner"  # its two policies found beside it in the wheel
+
+    # The command as a user runs it: the listing, then an experiment's config from hydra.
+    env.pop("JAXLOCO_EXPERIMENTS_DIR", None)
+    cli = [sys.executable, "-c", "import sys; from jaxloco.cli import main; main(sys.argv[1:])"]
+    listing = subprocess.run(
+        cli, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600
+    )
+    assert listing.returncode == 0, listing.stderr[-2000:]
+    assert "push-sweep" in listing.stdout and "walk-steer" in listing.stdout
+    config = subprocess.run(
+        [*cli, "phase-portrait", "--cfg", "job"],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert config.returncode == 0, config.stderr[-2000:]
+    assert "planner:" in config.stdout
