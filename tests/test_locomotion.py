@@ -17,7 +17,13 @@ from scipy.spatial.transform import Rotation, Slerp
 from jaxloco.dynamics import se3
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.learning.checkpoint import load_planner
-from jaxloco.locomotion import GaitParams, make_swing, make_walking_controller, retarget_swing
+from jaxloco.locomotion import (
+    GaitParams,
+    WalkingController,
+    make_swing,
+    make_walking_controller,
+    retarget_swing,
+)
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.swing import KNOTS, Motion
 from jaxloco.planner import PSPParams
@@ -505,7 +511,7 @@ def test_mjx_and_mujoco_c_agree_through_liftoff(walker):
     steps = 1300
     physics = mjx_loop.physics_model(model, mjx_loop.PhysicsParams())
     q0 = keyframe_qpos(model, "walk")
-    cstate = ctrl.init(jnp.asarray(q0))
+    cstate = jax.jit(WalkingController.init)(ctrl, jnp.asarray(q0))
     pushes = PushArrays.none()
     mx = mjx.put_model(physics)
     state = mjx_loop.init_loop_state(mx, q0, cstate)

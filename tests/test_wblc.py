@@ -305,6 +305,52 @@ def test_one_tick_is_consistent(valkyrie):
     np.testing.assert_array_equal(dg.torque_over_limit, np.abs(out.torques) > limits)
 
 
+def test_the_controller_is_a_pytree_an_argument_and_vmaps_over_models(valkyrie):
+    """``jit`` takes the controller as an argument (same torques as the closure), and two
+    controllers whose models differ only in a mass stack and ``vmap``: each gives its own
+    model's torques."""
+    model, data, ctrl, refs, tick = valkyrie
+    q, v = jnp.asarray(data.qpos), jnp.zeros(model.nv)
+    prev, gains = ctrl.initial_qp_state(), ctrl.default_gains()
+    want = tick(q, v, refs, prev, gains).torques
+
+    def call(c, q, v):
+        return c(q, v, refs, jnp.ones(2), gains, prev).torques
+
+    np.testing.assert_allclose(jax.jit(call)(ctrl, q, v), want, rtol=1e-9, atol=1e-9)
+    heavier = load_valkyrie()
+    heavier.body_mass[model.body("pelvis").id] += 10.0
+    other = make_wblc(heavier, wblc_config("walking"))
+    assert jax.tree.structure(other) == jax.tree.structure(ctrl)
+    both = jax.tree.map(lambda a, b: jnp.stack([a, b]), ctrl, other)
+    torques = jax.jit(jax.vmap(call, in_axes=(0, None, None)))(both, q, v)
+    np.testing.assert_allclose(torques[0], want, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(torques[1], jax.jit(call)(other, q, v), rtol=1e-9, atol=1e-9)
+    # The extra 10 kg: the legs carry more.
+    assert np.abs(np.asarray(torques[1] - torques[0])).max() > 1.0
+    # Each stage is a named scope, so it shows by name in profiles.
+    program = jax.jit(call).lower(ctrl, q, v).as_text(debug_info=True)
+    for stage in ("snapshot", "tasks", "hierarchy", "force_qp", "torques"):
+        assert f"wblc.{stage}" in program, stage
+
+
+def test_hold_references_from_mujoco_c_are_mjx_ones(valkyrie):
+    """Set-up's references from MuJoCo C's kinematics equal the traced MJX ones (float64)."""
+    model, data, ctrl, _, _ = valkyrie
+    q = np.asarray(data.qpos).copy()
+    q[7:] += np.random.default_rng(3).normal(scale=0.1, size=model.nq - 7)
+    q[3:7] = [0.96, 0.1, -0.2, 0.15]
+    q[3:7] /= np.linalg.norm(q[3:7])
+    want = jax.jit(ctrl.hold_references)(jnp.asarray(q))
+    got = ctrl.hold_references_at(model, q)
+    assert set(got) == set(want)
+    for name in want:
+        for field in ("pos", "vel", "acc", "weight"):
+            a, b = getattr(got[name], field), getattr(want[name], field)
+            assert a.shape == b.shape and a.dtype == b.dtype, (name, field)
+            np.testing.assert_allclose(a, b, atol=1e-9, err_msg=f"{name}.{field}")
+
+
 def test_the_tick_is_its_four_stages(valkyrie):
     """The stages called one by one (as a user replacing one of them would) give the
     tick's torques; stage 1 switches contact rows by the contact set, not the reference."""

@@ -290,3 +290,25 @@ def hold_reference(mx: mjx.Model, spec: TaskSpec, index: TaskIndex, snap: RobotS
         pos = jnp.zeros(spec.reference_dim, dtype)
     zeros = jnp.zeros(spec.dim, dtype)
     return TaskReference(pos, zeros, zeros, jnp.ones((), dtype))
+
+
+def hold_reference_from_data(
+    model: mujoco.MjModel, data: mujoco.MjData, spec: TaskSpec, index: TaskIndex, dtype
+) -> TaskReference:
+    """:func:`hold_reference` at rest, read from MuJoCo C's ``data`` after its position
+    stage (``mj_kinematics``): the same numbers without tracing MJX's kinematics, for
+    set-up code that runs once (op by op, MJX's kinematics take seconds)."""
+    if spec.kind == "com":
+        pos = model.body_mass @ data.xipos / np.sum(model.body_mass)
+    elif spec.kind in ("cam", "contact"):
+        pos = np.zeros(spec.reference_dim)
+    elif spec.kind == "orientation":
+        pos = data.xquat[index.body].copy()
+        if index.site_quat is not None:
+            mujoco.mju_mulQuat(pos, data.xquat[index.body], np.asarray(index.site_quat))
+    elif spec.kind == "position":
+        pos = data.site_xpos[index.site]
+    else:
+        pos = data.qpos[list(index.qpos)]
+    zeros = jnp.zeros(spec.dim, dtype)
+    return TaskReference(jnp.asarray(pos, dtype), zeros, zeros, jnp.ones((), dtype))

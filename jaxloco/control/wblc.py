@@ -36,6 +36,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
+from flax.core import FrozenDict
 from mujoco import mjx
 
 from jaxloco import validation as v
@@ -46,11 +47,11 @@ from jaxloco.control.segments import Segments
 from jaxloco.control.tasks import (
     PDGains,
     RobotSnapshot,
-    TaskIndex,
     TaskReference,
     TaskSpec,
     default_gains,
     hold_reference,
+    hold_reference_from_data,
     snapshot,
     task_index,
     task_terms,
@@ -203,30 +204,48 @@ class WBLCOutput:
     """Pass back as ``previous`` next tick (warm start)."""
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+@struct.dataclass
 class WBLC:
     """WBLC bound to a model: ``wblc(qpos, qvel, refs, contact, gains, previous)``.
 
     Build with :func:`make_wblc`. Pure and jittable; ``jax.vmap`` over a batch of robots.
+    A pytree: the MJX model and the arrays are leaves, the configuration and the model's
+    indices static, so a controller can be passed into ``jit`` as an argument (its model
+    then is not baked into the program) and controllers of models that differ only in
+    their numbers (masses, inertias, limits) stack and ``vmap``. Compared by identity.
     """
 
-    model: mujoco.MjModel
     mx: mjx.Model
-    config: WBLCConfig
-    indices: dict[str, TaskIndex]
-    """Each task's static model indices (sites, bodies, joints), by task name."""
-    point_sites: tuple[int, ...]
-    foot_of_point: tuple[int, ...]
+    """The model the controller computes with (colliders off: it needs no contacts)."""
     selection: jax.Array
+    """(nu, nv) the actuators' map to joint torques (their gears at their dofs)."""
     torque_limits: jax.Array
-    unactuated_dofs: tuple[int, ...]
-    actuated_dofs: tuple[int, ...]
+    """(nu,) each actuator's effort limit (N m; inf where the model sets none)."""
+    config: WBLCConfig = struct.field(pytree_node=False)
+    """Tasks, priority levels and solver settings."""
+    indices: FrozenDict = struct.field(pytree_node=False)
+    """``{task name: TaskIndex}``: each task's static model indices (sites, bodies,
+    joints)."""
+    point_sites: tuple[int, ...] = struct.field(pytree_node=False)
+    """Site ids of the contact points, feet in config order."""
+    point_bodies: tuple[int, ...] = struct.field(pytree_node=False)
+    """Body id of each contact point."""
+    foot_of_point: tuple[int, ...] = struct.field(pytree_node=False)
+    """Index (in ``config.feet``) of each contact point's foot."""
+    unactuated_dofs: tuple[int, ...] = struct.field(pytree_node=False)
+    """Dofs no actuator drives (the floating base's)."""
+    actuated_dofs: tuple[int, ...] = struct.field(pytree_node=False)
     """The dof each actuator drives, actuator order."""
-    foot_actuators: tuple[int, ...]
+    foot_actuators: tuple[int, ...] = struct.field(pytree_node=False)
     """Actuators whose joints carry a foot (a contact point's body or one of its
     ancestors): the torques the contact forces reach, the rows of ``torque_limits_in_qp``."""
-    base_rotation_dofs: tuple[int, ...]
+    base_rotation_dofs: tuple[int, ...] = struct.field(pytree_node=False)
     """The free joint's rotational dofs (empty for a fixed base)."""
+
+    # Identity, as before it was a pytree: jit keys bound methods (``jax.jit(ctrl.step)``)
+    # on their object, and a field-wise hash would hash the model's arrays.
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
 
     def default_gains(self) -> dict[str, PDGains]:
         """``{task name: PDGains}``: the config's default gains as traced data."""
@@ -241,6 +260,18 @@ class WBLC:
         snap = self.snapshot(qpos, qvel)
         return {
             t.name: hold_reference(self.mx, t, self.indices[t.name], snap)
+            for t in self.config.tasks
+        }
+
+    def hold_references_at(self, model: mujoco.MjModel, qpos) -> dict[str, TaskReference]:
+        """:meth:`hold_references` at rest at ``qpos``, computed by MuJoCo C on ``model``
+        (this controller's model): no tracing, for set-up code (dtype: JAX's default)."""
+        data = mujoco.MjData(model)
+        data.qpos[:] = np.asarray(qpos)
+        mujoco.mj_kinematics(model, data)
+        dtype = jnp.result_type(float)
+        return {
+            t.name: hold_reference_from_data(model, data, t, self.indices[t.name], dtype)
             for t in self.config.tasks
         }
 
@@ -304,18 +335,18 @@ def make_wblc(model: mujoco.MjModel, config: WBLCConfig, mx: mjx.Model | None = 
     free = [j for j in range(model.njnt) if model.jnt_type[j] == mujoco.mjtJoint.mjJNT_FREE]
     base_rotation = tuple(int(model.jnt_dofadr[j]) + k for j in free[:1] for k in (3, 4, 5))
     return WBLC(
-        model,
-        mx,
-        config,
-        indices,
-        tuple(point_sites),
-        tuple(foot_of_point),
-        selection,
-        limits,
-        unactuated,
-        tuple(int(v) for v in dofs),
-        foot_actuators,
-        base_rotation,
+        mx=mx,
+        selection=selection,
+        torque_limits=limits,
+        config=config,
+        indices=FrozenDict(indices),
+        point_sites=tuple(point_sites),
+        point_bodies=tuple(int(model.site_bodyid[s]) for s in point_sites),
+        foot_of_point=tuple(foot_of_point),
+        unactuated_dofs=unactuated,
+        actuated_dofs=tuple(int(v) for v in dofs),
+        foot_actuators=foot_actuators,
+        base_rotation_dofs=base_rotation,
     )
 
 
@@ -351,16 +382,23 @@ def wblc_tick(
     normal-force bound ramps with the weight (blending). ``snap``: the state's
     :class:`RobotSnapshot` when the caller already has it."""
     gains = ctrl.default_gains() if gains is None else gains
-    snap = ctrl.snapshot(qpos, qvel) if snap is None else snap
+    # Each stage a named scope: they show by name in profiles (jax.profiler, XLA dumps).
+    if snap is None:
+        with jax.named_scope("wblc.snapshot"):
+            snap = ctrl.snapshot(qpos, qvel)
     dtype = snap.data.qvel.dtype
     contact = jnp.clip(jnp.asarray(contact, dtype), 0.0, 1.0)
     previous = ctrl.initial_qp_state(dtype) if previous is None else previous
 
-    terms = task_stage(ctrl, snap, refs, contact, gains)
-    hier = hierarchy_stage(ctrl, snap, terms, refs[ctrl.config.cam_task].weight)
-    forces = force_stage(ctrl, snap, terms, hier, contact, previous)
-    qdd_task = hier.qdd @ forces.cam_shift
-    torques = torque_stage(ctrl, snap, hier, qdd_task, forces.solution.forces)
+    with jax.named_scope("wblc.tasks"):
+        terms = task_stage(ctrl, snap, refs, contact, gains)
+    with jax.named_scope("wblc.hierarchy"):
+        hier = hierarchy_stage(ctrl, snap, terms, refs[ctrl.config.cam_task].weight)
+    with jax.named_scope("wblc.force_qp"):
+        forces = force_stage(ctrl, snap, terms, hier, contact, previous)
+    with jax.named_scope("wblc.torques"):
+        qdd_task = hier.qdd @ forces.cam_shift
+        torques = torque_stage(ctrl, snap, hier, qdd_task, forces.solution.forces)
 
     cfg, sol = ctrl.config, forces.solution
     diagnostics = WBLCDiagnostics(
@@ -523,7 +561,7 @@ def torque_rows(
 def contact_jacobian(ctrl: WBLC, d, points):
     """``J_r`` (3n, nv) of the contact points, rows coordinate-major (all ``x``, all
     ``y``, all ``z``), as the force QP orders its variables."""
-    bodies = [int(ctrl.model.site_bodyid[s]) for s in ctrl.point_sites]
+    bodies = list(ctrl.point_bodies)
     spatial = {b: jac.frame_jacobian_spatial(ctrl.mx, d, b) for b in sorted(set(bodies))}
     rows = [spatial[b][3:] + jnp.cross(spatial[b][:3].T, points[k]).T for k, b in enumerate(bodies)]
     per_point = jnp.stack(rows)  # (n, 3, nv)
@@ -601,7 +639,7 @@ def contact_generalized_force(ctrl: WBLC, d, forces):
     per contact point.
     """
     points = d.site_xpos[jnp.asarray(ctrl.point_sites)]
-    bodies = [int(ctrl.model.site_bodyid[s]) for s in ctrl.point_sites]
+    bodies = list(ctrl.point_bodies)
     total = jnp.zeros(d.qvel.shape, forces.dtype)
     for body in sorted(set(bodies)):
         idx = jnp.asarray([k for k, b in enumerate(bodies) if b == body])

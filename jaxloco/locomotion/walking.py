@@ -9,8 +9,6 @@ engine (:mod:`jaxloco.sim.mujoco_c`) and MJX rollouts (:mod:`jaxloco.sim.mjx_loo
 
 from __future__ import annotations
 
-import dataclasses
-
 import jax
 import jax.numpy as jnp
 import mujoco
@@ -33,9 +31,6 @@ from jaxloco.robots import DEFAULT_ROBOT, RobotDescription, check_model, robot_s
 ARM_TASK = "arms"
 """The joint-posture task of the arms (the walking hierarchy's last level)."""
 
-# Eager callers (controller set-up) run the MJX kinematics compiled, not op by op.
-_snapshot = jax.jit(robot_snapshot)
-
 
 @struct.dataclass
 class WalkingState:
@@ -47,23 +42,33 @@ class WalkingState:
     """The force QP's warm start (its last ADMM iterate)."""
 
 
-@dataclasses.dataclass(frozen=True, eq=False)
+@struct.dataclass
 class WalkingController:
-    """Build with :func:`make_walking_controller`."""
+    """Build with :func:`make_walking_controller`.
+
+    A pytree: the WBLC (its MJX model and arrays), the step policy's weights and the
+    posture references are leaves; the gait's numbers, the foot sites and the robot's
+    description static. So ``jax.jit(WalkingController.step)(ctrl, t, qpos, qvel, state)``
+    takes the controller as an argument, and controllers that differ only in numbers
+    stack and ``vmap``. Compared by identity."""
 
     wblc: WBLC
     """The whole-body controller (the walking hierarchy)."""
-    gait_params: GaitParams
+    gait_params: GaitParams = struct.field(pytree_node=False)
     """The gait's numbers at the robot's size."""
     planner: Planner
     """The step policy (any :class:`~jaxloco.planner.protocol.Planner`), at the robot's size."""
     posture: dict[str, TaskReference]
     """Hold references of every task by name (the keyframe the robot starts in); the
     gait overwrites the CoM, body, CAM and swing-foot ones every tick."""
-    foot_sites: tuple[int, int]
+    foot_sites: tuple[int, int] = struct.field(pytree_node=False)
     """Site ids of the (left, right) contact frames."""
-    robot: RobotDescription
+    robot: RobotDescription = struct.field(pytree_node=False)
     """The robot whose model this controller is for."""
+
+    # Identity, as for WBLC: jit keys bound methods on their object.
+    __eq__ = object.__eq__
+    __hash__ = object.__hash__
 
     @property
     def psp(self):
@@ -79,10 +84,14 @@ class WalkingController:
         overrides: gait_lib.GaitOverrides | None = None,
     ) -> WalkingState:
         """The controller's state for a robot standing at ``qpos``; ``overrides``: this
-        robot's per-robot gait numbers (default: ``GaitOverrides.of(gait_params)``)."""
+        robot's per-robot gait numbers (default: ``GaitOverrides.of(gait_params)``).
+
+        Jit it at the call site (``jax.jit(WalkingController.init,
+        static_argnames="num_turns")(ctrl, qpos, ...)``): op by op, MJX's kinematics behind
+        it take tens of seconds."""
         qpos = jnp.asarray(qpos)
         qvel = jnp.zeros(self.wblc.mx.nv, qpos.dtype) if qvel is None else jnp.asarray(qvel)
-        snap = _snapshot(self.wblc.mx, qpos, qvel)  # jitted: see make_walking_controller
+        snap = robot_snapshot(self.wblc.mx, qpos, qvel)
         feet = snap.data.site_xpos[jnp.asarray(self.foot_sites)]
         g = gait_lib.init_gait(
             self.gait_params,
@@ -101,15 +110,17 @@ class WalkingController:
     ) -> tuple[jax.Array, WalkingState, WalkingLog]:
         """One control tick: ``(torques, new state, log)``, the log a :class:`WalkingLog`."""
         wblc, params, psp = self.wblc, self.gait_params, self.psp
-        snap = wblc.snapshot(qpos, qvel)
+        with jax.named_scope("wblc.snapshot"):
+            snap = wblc.snapshot(qpos, qvel)
         dtype = snap.data.qvel.dtype
         t = jnp.asarray(t, dtype)
         feet = snap.data.site_xpos[jnp.asarray(self.foot_sites)]
-        dt = jnp.asarray(wblc.model.opt.timestep, dtype)
-        g = gait_lib.advance(
-            state.gait, params, psp, self.planner.policy, t, snap.com, snap.com_vel, feet, dt
-        )
-        r = gait_lib.references(g, params, psp, t, snap.com, snap.com_vel)
+        dt = jnp.asarray(wblc.mx.opt.timestep, dtype)
+        with jax.named_scope("gait"):  # the state machine, the step planner, the references
+            g = gait_lib.advance(
+                state.gait, params, psp, self.planner.policy, t, snap.com, snap.com_vel, feet, dt
+            )
+            r = gait_lib.references(g, params, psp, t, snap.com, snap.com_vel)
         refs = dict(self.posture)
         refs["com"] = refs["com"].replace(pos=r.com.pos, vel=r.com.vel, acc=r.com.acc)
         body = gait_lib.yaw_reference(r.body_yaw)
@@ -142,9 +153,9 @@ def _cam_reference(ctrl: WalkingController, snap, qpos, body_yaw):
     alone they still wind up, turn after turn, until past their joint limits. Walking
     straight the turn term is zero.
     """
-    model, cfg = ctrl.wblc.model, ctrl.wblc.config
+    mx, cfg = ctrl.wblc.mx, ctrl.wblc.config
     a_ang = snap.centroidal_matrix[:3]
-    base_body, base_dof = int(model.jnt_bodyid[0]), int(model.jnt_dofadr[0])
+    base_body, base_dof = int(mx.jnt_bodyid[0]), int(mx.jnt_dofadr[0])
     world_z_in_base = snap.data.xmat[base_body][2]  # free-joint angular velocity is local
     k_per_yaw_rate = a_ang[:, base_dof + 3 : base_dof + 6] @ world_z_in_base
     ref = ctrl.posture[cfg.cam_task]
@@ -202,7 +213,14 @@ def make_walking_controller(
         planner = planner_at_height(planner, gait.com_height)
     wblc = make_wblc(model, config)
     qpos0 = robot.keyframe_qpos(model) if keyframe_qpos is None else np.asarray(keyframe_qpos)
-    # Jitted: op by op, the MJX kinematics behind it took 28.6 s (hundreds of small
-    # compiles, each too small for the persistent cache), against 2.2 s jitted.
-    posture = jax.jit(wblc.hold_references)(jnp.asarray(qpos0))
-    return WalkingController(wblc, gait, planner, posture, robot.foot_sites(model), robot)
+    # From MuJoCo C's kinematics: MJX's, op by op, took 28.6 s here (hundreds of small
+    # compiles, each too small for the persistent cache).
+    posture = wblc.hold_references_at(model, qpos0)
+    return WalkingController(
+        wblc=wblc,
+        gait_params=gait,
+        planner=planner,
+        posture=posture,
+        foot_sites=robot.foot_sites(model),
+        robot=robot,
+    )

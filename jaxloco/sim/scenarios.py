@@ -62,7 +62,8 @@ def simulate_walk(
     data.qpos[:] = ctrl.robot.keyframe_qpos(model)
     mujoco.mj_forward(sim_model, data)
     turns = None if turns is None or len(turns) == 0 else np.asarray(turns)
-    state = ctrl.init(jnp.asarray(data.qpos), turns=turns)
+    init = jax.jit(WalkingController.init, static_argnames="num_turns")
+    state = init(ctrl, jnp.asarray(data.qpos), turns=turns)
     rows = PushArrays.of(pushes) if pushes else None
     bodies = {body_index(model, p.body) for p in pushes}
     if len(bodies) > 1:

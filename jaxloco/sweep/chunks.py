@@ -14,6 +14,7 @@ rounds of a limit search), whatever its run directory.
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 
 import jax
@@ -98,13 +99,30 @@ def walks_needed(sweep: _Sweep, row_groups) -> dict[tuple, set]:
     }
 
 
+def _in_job_precision(method):
+    """Run ``method`` with JAX's float64 switched as the runner's job says, for this call
+    only (a context, not a process-wide change: the caller's setting stands outside)."""
+
+    @functools.wraps(method)
+    def wrapped(self, *args, **kwargs):
+        with jax.enable_x64(self.x64):
+            return method(self, *args, **kwargs)
+
+    return wrapped
+
+
 class ChunkRunner:
     """Runs chunks of sweeps with ``job``'s settings in this process (see the module doc).
 
-    ``make_backend``: False prepares walks only."""
+    Every method computes in the job's precision (``job.x64``), whatever the process's
+    own setting. ``make_backend``: False prepares walks only."""
 
     def __init__(self, job: SweepJob, make_backend: bool = True):
-        jax.config.update("jax_enable_x64", job.x64)
+        self.x64 = bool(job.x64)
+        with jax.enable_x64(self.x64):
+            self._init(job, make_backend)
+
+    def _init(self, job: SweepJob, make_backend: bool) -> None:
         if job.cache_dir:
             from jaxloco.runtime import enable_compilation_cache
 
@@ -139,6 +157,7 @@ class ChunkRunner:
                 self.sim_model, self.ctrl, body, job.fall_height, self.horizon_steps
             )
 
+    @_in_job_precision
     def sweep(self, job: SweepJob) -> _Sweep:
         """The push table and chunks of ``job``'s run directory."""
         if job.settings_digest() != self.job.settings_digest():
@@ -147,6 +166,7 @@ class ChunkRunner:
             self._sweep = load_sweep(job)
         return self._sweep
 
+    @_in_job_precision
     def prepare_walks(self, job: SweepJob, chunks, progress: bool = False) -> float:
         """Load or walk the undisturbed walks that ``chunks`` of ``job`` start from;
         returns the seconds it took."""
@@ -157,6 +177,7 @@ class ChunkRunner:
             self.walk(job, key, phases)
         return time.perf_counter() - t0
 
+    @_in_job_precision
     def walk(self, job: SweepJob, key: tuple, phases: set) -> float:
         """Have the undisturbed walk ``key`` (speed, turn, replan) snapshotted at
         ``phases`` at hand: held already, or kept in the walks folder, or walked now (at
@@ -183,6 +204,7 @@ class ChunkRunner:
             save_snapshots(path, self.snapshots[key])
         return time.perf_counter() - t0
 
+    @_in_job_precision
     def starts(self, job: SweepJob, index: int) -> ChunkStarts:
         """The start states of chunk ``index`` of ``job``, padded to ``chunk_size`` with
         its last push."""
@@ -204,6 +226,7 @@ class ChunkRunner:
         )
         return ChunkStarts(times, phys, cstate, pushes)
 
+    @_in_job_precision
     def run_chunk(self, job: SweepJob, index: int, tick_progress=None) -> ChunkReport:
         """Run chunk ``index`` of ``job`` and write its outcomes to its run directory."""
         t0 = time.perf_counter()
@@ -221,6 +244,7 @@ class ChunkRunner:
             env_steps=job.chunk_size * self.horizon_steps,
         )
 
+    @_in_job_precision
     def warm_up(self) -> float:
         """Compile the backend's chunk program now, before any walk exists: one tick of
         ``chunk_size`` robots standing at the walking keyframe (the shapes and dtypes of

@@ -102,7 +102,8 @@ def initial_controller_state(
     overrides = GaitOverrides.of(
         ctrl.gait_params, jnp.asarray(qpos).dtype, replan=bool(replan), apex_speed=apex_speed
     )
-    return ctrl.init(qpos, turns=turns, overrides=overrides)
+    init = jax.jit(WalkingController.init, static_argnames="num_turns")
+    return init(ctrl, qpos, turns=turns, overrides=overrides)
 
 
 def snapshot_walk(
