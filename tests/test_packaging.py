@@ -66,38 +66,35 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
         "from jaxloco.learning import load_planner\n"
         "print('RESULT', assets_dir(), load_valkyrie().nv, type(load_planner()).__name__)\n"
     )
-    env = {k: v for k, v in os.environ.items() if k != "JAXLOCO_ASSETS_DIR"}
+    # The installed package only: no checkout's folders named by the environment.
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("JAXLOCO_ASSETS_DIR", "JAXLOCO_EXPERIMENTS_DIR")
+    }
     env["PYTHONPATH"] = str(target)
-    out = subprocess.run(
-        [sys.executable, "-c", code],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert out.returncode == 0, out.stderr[-2000:]
-    (line,) = [x for x in out.stdout.splitlines() if x.startswith("RESULT ")]
+
+    def installed(*args):
+        out = subprocess.run(
+            [sys.executable, "-c", *args],
+            cwd=tmp_path,
+            env=env,
+            capture_output=True,
+            text=True,
+            timeout=600,
+        )
+        assert out.returncode == 0, out.stderr[-2000:]
+        return out.stdout
+
+    out = installed(code)
+    (line,) = [x for x in out.splitlines() if x.startswith("RESULT ")]
     _, assets, nv, planner = line.split()
     assert Path(assets).resolve() == (target / "jaxloco" / "assets").resolve()
     assert nv == "34"
     assert planner == "FallbackPlanner"  # its two policies found beside it in the wheel
 
     # The command as a user runs it: the listing, then an experiment's config from hydra.
-    env.pop("JAXLOCO_EXPERIMENTS_DIR", None)
-    cli = [sys.executable, "-c", "import sys; from jaxloco.cli import main; main(sys.argv[1:])"]
-    listing = subprocess.run(
-        cli, cwd=tmp_path, env=env, capture_output=True, text=True, timeout=600
-    )
-    assert listing.returncode == 0, listing.stderr[-2000:]
-    assert "push-sweep" in listing.stdout and "walk-steer" in listing.stdout
-    config = subprocess.run(
-        [*cli, "phase-portrait", "--cfg", "job"],
-        cwd=tmp_path,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-    assert config.returncode == 0, config.stderr[-2000:]
-    assert "planner:" in config.stdout
+    cli = "import sys; from jaxloco.cli import main; main(sys.argv[1:])"
+    listing = installed(cli)
+    assert "push-sweep" in listing and "walk-steer" in listing
+    assert "planner:" in installed(cli, "phase-portrait", "--cfg", "job")
