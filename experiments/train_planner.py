@@ -49,10 +49,11 @@ from jaxloco.learning import (
     save_checkpoint,
     train,
 )
-from jaxloco.learning.checkpoint import load_checkpoint_config, load_planner, load_train_state
+from jaxloco.learning.checkpoint import load_checkpoint_config, load_train_state
 from jaxloco.learning.evaluation import survival_basin
+from jaxloco.learning.loading import load_planner, save_scaled_checkpoint
 from jaxloco.learning.ppo import PPOConfig, save_ppo_checkpoint, train_ppo
-from jaxloco.learning.scaled import save_scaled_checkpoint, scale_box
+from jaxloco.learning.scaled import scale_box
 from jaxloco.learning.training import params_fingerprint
 from jaxloco.planner import PSPParams
 from jaxloco.robots import robot_scale

@@ -10,12 +10,9 @@ import numpy as np
 import pytest
 
 from jaxloco.learning import load_planner, steps_survived
-from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir, checkpoint_digest
-from jaxloco.learning.fallback import (
-    FallbackPlanner,
-    make_fallback_planner,
-    save_fallback_checkpoint,
-)
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
+from jaxloco.learning.fallback import FallbackPlanner, make_fallback_planner
+from jaxloco.learning.loading import checkpoint_digest, save_fallback_checkpoint
 from jaxloco.learning.starts import StartStates, uniform_states
 from jaxloco.planner import Planner
 

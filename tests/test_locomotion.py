@@ -16,7 +16,7 @@ from scipy.spatial.transform import Rotation, Slerp
 
 from jaxloco.dynamics import se3
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
-from jaxloco.learning.checkpoint import load_planner
+from jaxloco.learning.loading import load_planner
 from jaxloco.locomotion import (
     GaitParams,
     WalkingController,

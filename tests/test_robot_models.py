@@ -20,14 +20,10 @@ from jaxloco.control.presets import walking_config
 from jaxloco.control.tasks import frame_quat, task_index
 from jaxloco.control.wblc import make_wblc
 from jaxloco.learning import load_planner
-from jaxloco.learning.checkpoint import SHIPPED_POLICIES, checkpoint_digest
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES
 from jaxloco.learning.evaluation import steps_survived
-from jaxloco.learning.scaled import (
-    ScaledPlanner,
-    load_scaled_planner,
-    save_scaled_checkpoint,
-    scale_box,
-)
+from jaxloco.learning.loading import checkpoint_digest, load_scaled_planner, save_scaled_checkpoint
+from jaxloco.learning.scaled import ScaledPlanner, scale_box
 from jaxloco.learning.starts import StartStates, uniform_states
 from jaxloco.locomotion import GaitParams, make_walking_controller
 from jaxloco.locomotion.walking import robot_gait, robot_planner

@@ -9,7 +9,6 @@ from jaxloco.learning.actor_critic import (
 from jaxloco.learning.checkpoint import (
     LearnedPlanner,
     load_checkpoint_config,
-    load_planner,
     save_checkpoint,
 )
 from jaxloco.learning.evaluation import (
@@ -18,6 +17,13 @@ from jaxloco.learning.evaluation import (
     steps_survived,
     survival_basin,
     value_function,
+)
+from jaxloco.learning.fallback import FallbackPlanner, make_fallback_planner
+from jaxloco.learning.loading import (
+    checkpoint_digest,
+    load_planner,
+    save_fallback_checkpoint,
+    save_scaled_checkpoint,
 )
 from jaxloco.learning.rbf import RBFGrid
 from jaxloco.learning.refine import RefineConfig, RefineResult, refine
@@ -33,6 +39,11 @@ from jaxloco.learning.training import (
 )
 
 __all__ = [
+    "FallbackPlanner",
+    "checkpoint_digest",
+    "make_fallback_planner",
+    "save_fallback_checkpoint",
+    "save_scaled_checkpoint",
     "FAST",
     "ActorCriticConfig",
     "EpisodeTurns",

@@ -8,16 +8,17 @@ A checkpoint is a folder:
   and facts about the run (iteration, basin, timings);
 - ``train_state.msgpack`` (optional): the full training state, to resume training.
 
-:func:`load_planner` turns a checkpoint into a :class:`LearnedPlanner`; with no path it
-loads a policy shipped in ``assets/policies/`` (:data:`SHIPPED_POLICIES`).
+The checkpoint kinds' files and the shipped policies (:data:`SHIPPED_POLICIES`) are named
+here; :func:`load_learned_planner` loads this kind. Every kind loads through one
+dispatcher, :func:`jaxloco.learning.loading.load_planner`.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -63,10 +64,6 @@ FALLBACK_FILE = "fallback.json"
 """The file that marks a checkpoint of :mod:`jaxloco.learning.fallback`."""
 SCALED_FILE = "scaled.json"
 """The file that marks a checkpoint of :mod:`jaxloco.learning.scaled`."""
-
-if TYPE_CHECKING:
-    from jaxloco.learning.fallback import FallbackPlanner
-    from jaxloco.learning.ppo import PPOPlanner
 
 
 def save_checkpoint(
@@ -171,34 +168,20 @@ class LearnedPlanner:
         return over_states(one, state)
 
 
-def load_planner(
-    path=None, shipped: str = "default"
-) -> LearnedPlanner | PPOPlanner | FallbackPlanner:
-    """Load a trained planner from ``path`` (an RL-PSP checkpoint, a PPO one from
-    ``jaxloco train-planner method=ppo``, or a :mod:`~jaxloco.learning.fallback` one naming
-    two of them); with no path, the policy shipped with jaxloco named ``shipped`` (a key of
-    :data:`SHIPPED_POLICIES`). All kinds have the same interface: ``policy``,
-    ``mean_action``, ``value``, ``psp``."""
-    if path is None:
-        if shipped not in SHIPPED_POLICIES:
-            raise ValueError(
-                f"load_planner: shipped must be one of {sorted(SHIPPED_POLICIES)}; got {shipped!r}"
-            )
-        path = assets_dir() / SHIPPED_POLICIES[shipped]
+def shipped_path(shipped: str = "default") -> Path:
+    """The folder of the policy shipped with jaxloco named ``shipped`` (a key of
+    :data:`SHIPPED_POLICIES`)."""
+    if shipped not in SHIPPED_POLICIES:
+        raise ValueError(
+            f"load_planner: shipped must be one of {sorted(SHIPPED_POLICIES)}; got {shipped!r}"
+        )
+    return assets_dir() / SHIPPED_POLICIES[shipped]
+
+
+def load_learned_planner(path) -> LearnedPlanner:
+    """The :class:`LearnedPlanner` of an RL-PSP checkpoint folder (``weights.npz`` and
+    ``config.json``)."""
     path = Path(path)
-    if (path / SCALED_FILE).exists():
-        from jaxloco.learning.scaled import load_scaled_planner
-
-        return load_scaled_planner(path)
-    if (path / FALLBACK_FILE).exists():
-        from jaxloco.learning.fallback import load_fallback_planner
-
-        return load_fallback_planner(path)
-    if (path / PPO_PARAMS_FILE).exists():
-        # Imported here: Brax loads only for PPO checkpoints, not for every walking controller.
-        from jaxloco.learning.ppo import load_ppo_planner
-
-        return load_ppo_planner(path)
     if not (path / "weights.npz").exists():
         raise FileNotFoundError(
             f"no planner checkpoint at {path} (expected weights.npz or {PPO_PARAMS_FILE}, "
@@ -208,20 +191,9 @@ def load_planner(
     return LearnedPlanner(load_params(path, config), config.grid, config.planner)
 
 
-def checkpoint_digest(path=None, shipped: str = "default") -> str:
-    """A short SHA-256 of the files a planner is loaded from (``path``, or the shipped
-    policy ``shipped``): the same digest means the same policy, wherever it lies."""
-    import hashlib
-
-    path = Path(path) if path is not None else assets_dir() / SHIPPED_POLICIES[shipped]
-    if (path / SCALED_FILE).exists():
-        from jaxloco.learning.scaled import scaled_digest
-
-        return scaled_digest(path)
-    if (path / FALLBACK_FILE).exists():
-        from jaxloco.learning.fallback import fallback_digest
-
-        return fallback_digest(path)
+def files_digest(path) -> str:
+    """A short SHA-256 of the files a leaf checkpoint (RL-PSP or PPO) is loaded from."""
+    path = Path(path)
     h = hashlib.sha256()
     for name in ("config.json", "weights.npz", PPO_PARAMS_FILE):
         if (path / name).exists():

@@ -18,7 +18,7 @@ paper.
 
 A checkpoint is a folder holding ``fallback.json``: the look-ahead's ``steps`` and the
 paths of the two checkpoints (relative to the folder, or absolute), which
-:func:`~jaxloco.learning.load_planner` loads.
+:func:`~jaxloco.learning.loading.load_planner` loads.
 """
 
 from __future__ import annotations
@@ -26,11 +26,12 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 import jax.numpy as jnp
 from flax import struct
 
-from jaxloco.learning.checkpoint import FALLBACK_FILE, checkpoint_digest, load_planner
+from jaxloco.learning.checkpoint import FALLBACK_FILE
 from jaxloco.learning.evaluation import over_states
 from jaxloco.planner import Planner, PSPParams, plan_steps
 
@@ -99,13 +100,26 @@ def make_fallback_planner(
     return FallbackPlanner(primary, fallback, primary.psp, int(steps), bool(strict))
 
 
-def save_fallback_checkpoint(path, primary, fallback, steps: int = 1, strict: bool = True) -> Path:
-    """Write a fallback checkpoint at ``path`` naming the checkpoint folders ``primary`` and
+class FallbackCheckpoint(NamedTuple):
+    """What a fallback checkpoint's ``fallback.json`` holds."""
+
+    primary: Path
+    """The primary policy's checkpoint folder."""
+    fallback: Path
+    """The fallback policy's checkpoint folder."""
+    steps: int
+    """Steps of the look-ahead."""
+    strict: bool
+    """See :attr:`FallbackPlanner.strict`."""
+
+
+def write_fallback_checkpoint(path, primary, fallback, steps: int, strict: bool) -> Path:
+    """Write ``fallback.json`` at ``path`` naming the checkpoint folders ``primary`` and
     ``fallback`` (stored relative to ``path`` when they lie beside or inside it, so the
-    three folders move together; else absolute); returns ``path``."""
+    three folders move together; else absolute); returns ``path``. Checks nothing: use
+    :func:`jaxloco.learning.loading.save_fallback_checkpoint`."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
-    make_fallback_planner(load_planner(primary), load_planner(fallback), steps, strict)
 
     def relative(p):
         p = Path(p).resolve()
@@ -124,31 +138,22 @@ def save_fallback_checkpoint(path, primary, fallback, steps: int = 1, strict: bo
     return path
 
 
-def _read(path: Path) -> tuple[Path, Path, int, bool]:
+def read_fallback_checkpoint(path) -> FallbackCheckpoint:
+    """The contents of the fallback checkpoint folder ``path`` (its policies' folders
+    resolved against it)."""
+    path = Path(path)
     meta = json.loads((path / FALLBACK_FILE).read_text())
     if meta.get("format_version") != FORMAT_VERSION:
         raise ValueError(
             f"{path / FALLBACK_FILE}: format {meta.get('format_version')!r}, "
             f"expected {FORMAT_VERSION}"
         )
-    return path / meta["primary"], path / meta["fallback"], meta["steps"], meta["strict"]
-
-
-def load_fallback_planner(path) -> FallbackPlanner:
-    """The :class:`FallbackPlanner` of a fallback checkpoint folder."""
-    primary, fallback, steps, strict = _read(Path(path))
-    for role, p in (("primary", primary), ("fallback", fallback)):
-        if not p.is_dir():
-            raise FileNotFoundError(f"{Path(path) / FALLBACK_FILE}: its {role} {p} is missing")
-    return make_fallback_planner(load_planner(primary), load_planner(fallback), steps, strict)
-
-
-def fallback_digest(path) -> str:
-    """A short SHA-256 of a fallback checkpoint: its look-ahead and both policies' digests."""
-    import hashlib
-
-    primary, fallback, steps, strict = _read(Path(path))
-    h = hashlib.sha256(f"steps={steps} strict={strict}".encode())
-    for p in (primary, fallback):
-        h.update(checkpoint_digest(p).encode())
-    return h.hexdigest()[:16]
+    found = FallbackCheckpoint(
+        path / meta["primary"], path / meta["fallback"], int(meta["steps"]), bool(meta["strict"])
+    )
+    for role in ("primary", "fallback"):
+        if not getattr(found, role).is_dir():
+            raise FileNotFoundError(
+                f"{path / FALLBACK_FILE}: its {role} {getattr(found, role)} is missing"
+            )
+    return found

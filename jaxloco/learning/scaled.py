@@ -6,14 +6,14 @@ wraps)."""
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import os
 from pathlib import Path
+from typing import NamedTuple
 
 from flax import struct
 
-from jaxloco.learning.checkpoint import SCALED_FILE, checkpoint_digest, load_planner
+from jaxloco.learning.checkpoint import SCALED_FILE
 from jaxloco.learning.evaluation import over_states
 from jaxloco.learning.starts import StartStates
 from jaxloco.planner import FroudeScale, Planner, PSPParams, scale_psp
@@ -60,15 +60,26 @@ def planner_at_height(planner, h: float):
 FORMAT_VERSION = 1
 
 
-def save_scaled_checkpoint(path, reference, scale: FroudeScale, robot: str = "") -> Path:
-    """Write a scaled checkpoint at ``path``: ``reference`` (a checkpoint folder of any kind,
-    learned at the reference size) serving a robot of ``scale`` (``robot``: its name, for
-    the record). ``reference`` is stored relative to ``path`` when it lies beside or inside
-    it (the folders move together), else absolute; returns ``path``."""
+class ScaledCheckpoint(NamedTuple):
+    """What a scaled checkpoint's ``scaled.json`` holds."""
+
+    reference: Path
+    """The checkpoint folder of the planner learned at the reference size."""
+    scale: FroudeScale
+    """The robot's size relative to the reference."""
+    robot: str
+    """The robot's name, for the record."""
+
+
+def write_scaled_checkpoint(path, reference, scale: FroudeScale, robot: str = "") -> Path:
+    """Write ``scaled.json`` at ``path``: ``reference`` (a checkpoint folder of any kind,
+    learned at the reference size) serving a robot of ``scale`` (``robot``: its name).
+    ``reference`` is stored relative to ``path`` when it lies beside or inside it (the
+    folders move together), else absolute; returns ``path``. Checks nothing: use
+    :func:`jaxloco.learning.loading.save_scaled_checkpoint`."""
     path = Path(path)
     path.mkdir(parents=True, exist_ok=True)
     reference = Path(reference).resolve()
-    load_planner(reference)  # refuse a folder that is no checkpoint now, not at load time
     stored = (
         os.path.relpath(reference, path.resolve())
         if reference.is_relative_to(path.resolve().parent)
@@ -84,30 +95,20 @@ def save_scaled_checkpoint(path, reference, scale: FroudeScale, robot: str = "")
     return path
 
 
-def _read(path: Path) -> tuple[Path, FroudeScale, str]:
+def read_scaled_checkpoint(path) -> ScaledCheckpoint:
+    """The contents of the scaled checkpoint folder ``path`` (its reference resolved
+    against it)."""
+    path = Path(path)
     meta = json.loads((path / SCALED_FILE).read_text())
     if meta.get("format_version") != FORMAT_VERSION:
         raise ValueError(
             f"{path / SCALED_FILE}: format {meta.get('format_version')!r}, "
             f"expected {FORMAT_VERSION}"
         )
-    return path / meta["reference"], FroudeScale(float(meta["length_scale"])), meta["robot"]
-
-
-def load_scaled_planner(path) -> ScaledPlanner:
-    """The :class:`ScaledPlanner` of a scaled checkpoint folder."""
-    reference, scale, _ = _read(Path(path))
+    reference = path / meta["reference"]
     if not reference.is_dir():
-        raise FileNotFoundError(f"{Path(path) / SCALED_FILE}: its reference {reference} is missing")
-    return ScaledPlanner(load_planner(reference), scale)
-
-
-def scaled_digest(path) -> str:
-    """A short SHA-256 of a scaled checkpoint: its scale and its reference's digest."""
-    reference, scale, _ = _read(Path(path))
-    h = hashlib.sha256(f"length_scale={scale.length!r}".encode())
-    h.update(checkpoint_digest(reference).encode())
-    return h.hexdigest()[:16]
+        raise FileNotFoundError(f"{path / SCALED_FILE}: its reference {reference} is missing")
+    return ScaledCheckpoint(reference, FroudeScale(float(meta["length_scale"])), meta["robot"])
 
 
 def scale_box(spec: StartStates, scale: FroudeScale) -> StartStates:

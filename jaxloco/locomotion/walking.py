@@ -20,7 +20,7 @@ from jaxloco.control.presets import foot_task, walking_config
 from jaxloco.control.tasks import TaskReference
 from jaxloco.control.tasks import snapshot as robot_snapshot
 from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
-from jaxloco.learning.checkpoint import load_planner
+from jaxloco.learning.loading import load_planner
 from jaxloco.learning.scaled import ScaledPlanner, planner_at_height
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.gait import GaitParams, GaitState

@@ -23,7 +23,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from jaxloco.control.presets import walking_config
-from jaxloco.learning.checkpoint import load_planner
+from jaxloco.learning.loading import load_planner
 from jaxloco.locomotion import make_walking_controller
 from jaxloco.locomotion.walking import robot_planner
 from jaxloco.robots import robot_by_name

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from jaxloco import validation as v
 from jaxloco.control.wblc import WBLCConfig
-from jaxloco.learning.checkpoint import checkpoint_digest
+from jaxloco.learning.loading import checkpoint_digest
 from jaxloco.locomotion import GaitParams
 from jaxloco.robots import DEFAULT_ROBOT, ROBOTS
 from jaxloco.sim.mjx_loop import PhysicsParams
