@@ -242,7 +242,7 @@ class WBLC:
     base_rotation_dofs: tuple[int, ...] = struct.field(pytree_node=False)
     """The free joint's rotational dofs (empty for a fixed base)."""
 
-    # Identity, as before it was a pytree: jit keys bound methods (``jax.jit(ctrl.step)``)
+    # Compared by identity: jit keys bound methods (``jax.jit(ctrl.step)``)
     # on their object, and a field-wise hash would hash the model's arrays.
     __eq__ = object.__eq__
     __hash__ = object.__hash__
