@@ -26,6 +26,11 @@ enable_compilation_cache(os.environ["JAXLOCO_TEST_CACHE_DIR"])
 
 def pytest_addoption(parser):
     parser.addoption("--runslow", action="store_true", help="also run tests marked slow")
+    parser.addoption(
+        "--compile-report",
+        metavar="PATH",
+        help="write each test's JAX trace, lowering and compile seconds to PATH (JSON lines)",
+    )
 
 
 # Files in the order the two workers should start them (``make test`` passes
@@ -56,3 +61,48 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "slow" in item.keywords:
             item.add_marker(skip)
+
+
+# --- where the suite's time goes -------------------------------------------------------
+# ``pytest --compile-report PATH``: per test, the seconds this process spent tracing,
+# lowering and compiling JAX programs (JAX's own monitoring events; programs compiled in
+# subprocesses, e.g. CLI runs and Dask workers, are not seen), written as JSON lines to
+# PATH (one file per xdist worker: PATH.gw0, PATH.gw1).
+_COMPILE_EVENTS = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+    "/jax/core/compile/backend_compile_duration": "compile_s",
+}
+_compile_seconds: dict[str, float] = {}
+
+
+def _record_compile_event(event: str, duration: float, **_) -> None:
+    key = _COMPILE_EVENTS.get(event)
+    if key is not None:
+        _compile_seconds[key] = _compile_seconds.get(key, 0.0) + duration
+        if key == "compile_s":
+            _compile_seconds["programs"] = _compile_seconds.get("programs", 0) + 1
+
+
+def pytest_configure(config):
+    if config.getoption("--compile-report", default=None):
+        jax.monitoring.register_event_duration_secs_listener(_record_compile_event)
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    path = item.config.getoption("--compile-report", default=None)
+    if not path:
+        yield
+        return
+    import json
+    import time
+
+    _compile_seconds.clear()
+    start = time.perf_counter()
+    yield
+    row = {"test": item.nodeid, "wall_s": round(time.perf_counter() - start, 2)}
+    row.update({k: round(v, 2) for k, v in _compile_seconds.items()})
+    worker = os.environ.get("PYTEST_XDIST_WORKER")
+    with open(f"{path}.{worker}" if worker else path, "a") as f:
+        f.write(json.dumps(row) + "\n")

@@ -596,25 +596,21 @@ def _plan(
     return StepDecision(duration, foot_xy, apex, action, reason, failed)
 
 
-def _begin_step(
-    state: GaitState, params, psp, policy, t, stance, stance_pos, swing_pos, heading, weight0
+def _start_step(
+    state: GaitState,
+    params,
+    t,
+    plan: StepDecision,
+    stance,
+    stance_pos,
+    swing_pos,
+    heading,
+    weight0,
+    com: Motion,
 ):
-    """A new single-support step on ``stance`` from time ``t`` (see the module doc)."""
+    """A new single-support step on ``stance`` from time ``t``, planned by ``plan`` from the
+    CoM reference ``com`` at ``t`` (see the module doc)."""
     dtype = stance_pos.dtype
-    sign = _lateral_sign(stance).astype(dtype)
-    com_pos, com_vel, _ = com_reference(state, params, psp, t)
-    plan = _plan(
-        params,
-        psp,
-        policy,
-        com_pos[:2],
-        com_vel[:2],
-        stance_pos,
-        heading,
-        sign,
-        jnp.asarray(params.fallback_duration, dtype),
-        state.overrides.apex_speed,
-    )
     duration = jnp.clip(plan.duration, params.min_step_duration, params.max_step_duration)
     target = jnp.append(plan.foot_xy, stance_pos[2])
     turn_index = jnp.minimum(state.step, state.turns.shape[0] - 1)
@@ -637,13 +633,13 @@ def _begin_step(
         stance_weight0=jnp.asarray(weight0, dtype),
         stance_pos=stance_pos,
         heading=heading,
-        lateral_sign=sign,
+        lateral_sign=_lateral_sign(stance).astype(dtype),
         next_heading=next_heading,
         body_yaw0=state.body_yaw1,
         body_yaw1=0.5 * (heading + next_heading),
         com_t0=t,
-        com_pos0=com_pos[:2],
-        com_vel0=com_vel[:2],
+        com_pos0=com.pos[:2],
+        com_vel0=com.vel[:2],
         swing=swing,
         swing_yaw0=state.foot_yaw[swing_foot],
         error_time=jnp.zeros((), dtype),
@@ -655,34 +651,24 @@ def _begin_step(
     )
 
 
-def _replan(state: GaitState, params, psp, policy, t, com, com_vel):
-    """Eq. 34: re-plan the current step from a blend of the desired and measured CoM."""
-    g = state.overrides.replan_gamma
-    ref_pos, ref_vel, _ = com_reference(state, params, psp, t)
-    new_pos = g * ref_pos[:2] + (1 - g) * com[:2]
-    new_vel = g * ref_vel[:2] + (1 - g) * com_vel[:2]
-    elapsed = t - state.step_start
+def _replan_remaining(state: GaitState, params, elapsed):
+    """Eq. 34's fallback time: when the re-planned step has no solution, the capture step
+    lands in this many seconds."""
     # A capture step already under way keeps its touch-down time (only its target moves):
     # restarting the fallback clock at every replan would postpone the landing as long as
     # the error stays large, which is exactly when the foot must come down.
     in_fallback = (state.last_reason & int(INFEASIBLE)) != 0
-    fallback_remaining = jnp.where(
+    return jnp.where(
         in_fallback,
         jnp.maximum(state.step_duration - elapsed, params.replan_min_remaining),
         jnp.clip(params.fallback_duration - elapsed, params.replan_min_remaining + 0.1, None),
     )
-    plan = _plan(
-        params,
-        psp,
-        policy,
-        new_pos,
-        new_vel,
-        state.stance_pos,
-        state.heading,
-        state.lateral_sign,
-        fallback_remaining,
-        state.overrides.apex_speed,
-    )
+
+
+def _apply_replan(state: GaitState, params, t, plan: StepDecision, new_pos, new_vel):
+    """Eq. 34: the current step re-planned (``plan``) from the blended CoM state
+    ``new_pos``, ``new_vel`` (2,) each."""
+    elapsed = t - state.step_start
     remaining = jnp.clip(plan.duration, params.replan_min_remaining, params.max_step_duration)
     target = jnp.append(plan.foot_xy, state.stance_pos[2])
     pos = state.swing.evaluate(t)[0]
@@ -730,68 +716,90 @@ def advance(
     """One tick of the state machine at time ``t`` given the measured CoM (3,), its
     velocity (3,) and the feet's contact-frame positions (2, 3)."""
     t = jnp.asarray(t, state.step_start.dtype)
+    dtype = state.step_start.dtype
     elapsed = t - state.step_start
     # A touch-down waits (up to max_touchdown_delay) for the landing foot to be down.
     landing = 1 - state.stance
     down = feet_pos[landing, 2] <= state.target[2] + params.touchdown_height
     late = elapsed >= state.step_duration + params.max_touchdown_delay - 1e-9
     due = (elapsed >= state.step_duration - 1e-9) & ((state.phase == START) | down | late)
+    first = state.phase == START  # a due step from START is the first lift-off
 
-    def first_liftoff(s):
-        stance = s.stance
-        return _begin_step(
-            s,
-            params,
-            psp,
-            policy,
-            t,
-            stance,
-            feet_pos[stance],
-            feet_pos[1 - stance],
-            s.heading,
-            1.0,
-        )
-
-    def touchdown(s):
-        landed = 1 - s.stance
-        s = s.replace(foot_yaw=s.foot_yaw.at[landed].set(s.next_heading), body_yaw1=s.body_yaw1)
-        # The new stance foot stands where it was measured, at the height it was planned to
-        # land at: a foot that lands late (after a push) is still in the air at the planned
-        # touch-down, and its measured height would lift every later footstep and the CoM
-        # reference off the floor (measured after a 520 N push: 1.2 cm, then 6.4 cm).
-        landed_pos = feet_pos[landed].at[2].set(s.target[2])
-        return _begin_step(
-            s,
-            params,
-            psp,
-            policy,
-            t,
-            landed,
-            landed_pos,
-            feet_pos[s.stance],
-            s.next_heading,
-            0.0,
-        )
-
-    branch = jnp.where(due, jnp.where(state.phase == START, 1, 2), 0)
-    state = jax.lax.switch(branch, [lambda s: s, first_liftoff, touchdown], state)
-
-    # Replanning (Eq. 33-34), only while a foot swings and not when it is about to land.
+    # Replanning (Eq. 33-34), only while a foot swings and not when it is about to land (a
+    # step begun this tick has not started to swing).
+    ref = com_reference(state, params, psp, t)
     err = com_error(state, params, psp, t, com, com_vel)
-    elapsed = t - state.step_start
-    swinging = (state.phase == WALK) & (elapsed >= params.contact_blend)
-    remaining = state.step_duration - elapsed
+    swinging = (state.phase == WALK) & (elapsed >= params.contact_blend) & ~due
     over = (
         swinging
         & (err > state.overrides.replan_threshold)
-        & (remaining > params.replan_min_remaining)
+        & (state.step_duration - elapsed > params.replan_min_remaining)
     )
     error_time = jnp.where(over, state.error_time + dt, 0.0)
     state = state.replace(error_time=error_time)
-    trigger = over & (error_time > params.replan_delay) & state.overrides.replan
-    return jax.lax.cond(
-        trigger, lambda s: _replan(s, params, psp, policy, t, com, com_vel), lambda s: s, state
-    )
+    replan = over & (error_time > params.replan_delay) & state.overrides.replan
+
+    # The new step, when one is due: at the first lift-off on the current stance foot; at a
+    # touch-down on the landed foot, which stands where it was measured at the height it
+    # was planned to land at (a foot that lands late, after a push, is still in the air at
+    # the planned touch-down, and its measured height would lift every later footstep and
+    # the CoM reference off the floor: measured after a 520 N push, 1.2 cm, then 6.4 cm).
+    landed_pos = feet_pos[landing].at[2].set(state.target[2])
+    stance = jnp.where(first, state.stance, landing)
+    stance_pos = jnp.where(first, feet_pos[state.stance], landed_pos)
+    swing_pos = jnp.where(first, feet_pos[landing], feet_pos[state.stance])
+    heading = jnp.where(first, state.heading, state.next_heading)
+    weight0 = jnp.where(first, 1.0, 0.0)
+    g = state.overrides.replan_gamma
+    new_pos = g * ref.pos[:2] + (1 - g) * com[:2]
+    new_vel = g * ref.vel[:2] + (1 - g) * com_vel[:2]
+
+    # One plan per tick at most (a step begins, or the current one is re-planned), so the
+    # policy appears once in the program.
+    def plan(_):
+        return _plan(
+            params,
+            psp,
+            policy,
+            jnp.where(due, ref.pos[:2], new_pos),
+            jnp.where(due, ref.vel[:2], new_vel),
+            jnp.where(due, stance_pos, state.stance_pos),
+            jnp.where(due, heading, state.heading),
+            jnp.where(due, _lateral_sign(stance).astype(dtype), state.lateral_sign),
+            jnp.where(
+                due,
+                jnp.asarray(params.fallback_duration, dtype),
+                _replan_remaining(state, params, elapsed),
+            ),
+            state.overrides.apex_speed,
+        )
+
+    def no_plan(_):
+        zero = jnp.zeros((), dtype)
+        return StepDecision(
+            zero,
+            jnp.zeros(2, dtype),
+            jnp.zeros(3, dtype),
+            jnp.zeros(3, dtype),
+            jnp.zeros((), jnp.int32),
+            jnp.zeros((), bool),
+        )
+
+    decision = jax.lax.cond(due | replan, plan, no_plan, None)
+
+    def begin(s):
+        s = s.replace(
+            foot_yaw=jnp.where(first, s.foot_yaw, s.foot_yaw.at[landing].set(s.next_heading))
+        )
+        return _start_step(
+            s, params, t, decision, stance, stance_pos, swing_pos, heading, weight0, ref
+        )
+
+    def replanned(s):
+        return _apply_replan(s, params, t, decision, new_pos, new_vel)
+
+    branch = jnp.where(due, 1, jnp.where(replan, 2, 0))
+    return jax.lax.switch(branch, [lambda s: s, begin, replanned], state)
 
 
 def references(
