@@ -17,7 +17,9 @@ $(STAMP): pyproject.toml constraints.txt
 	  { echo "error: jaxloco needs Python >= 3.11, found $$($(PYTHON) --version)"; exit 1; }
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[dev]"
+	@# setuptools says an editable install of a package mapped from several folders is
+	@# "information only" (a UserWarning); nothing in it needs acting on.
+	PYTHONWARNINGS=ignore::UserWarning $(BIN)/python -m pip install --quiet -c constraints.txt -e ".[dev]"
 	@touch $(STAMP)
 
 # The main job on embedded defaults: the limit search (the largest recovered impulse for
@@ -45,7 +47,7 @@ test-all: $(STAMP)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --no-loadscope-reorder --runslow
 
 bench: $(STAMP)
-	-$(BIN)/python -m pip install --quiet -c constraints.txt -e ".[bench]"
+	-PYTHONWARNINGS=ignore::UserWarning $(BIN)/python -m pip install --quiet -c constraints.txt -e ".[bench]"
 	for b in planner learning dynamics wblc closed_loop sweep tuning; do \
 	  $(BIN)/python benchmarks/bench_$$b.py --json benchmarks/results/bench_$$b.json || exit 1; done
 	$(BIN)/python benchmarks/render_results.py

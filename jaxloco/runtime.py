@@ -8,6 +8,7 @@ from __future__ import annotations
 import contextlib
 import faulthandler
 import importlib.util
+import io
 import json
 import logging
 import os
@@ -72,6 +73,21 @@ def configure(small_loop_bytes: int = SMALL_LOOP_BYTES) -> None:
         )
     if wanted:
         os.environ["XLA_FLAGS"] = " ".join([flags, *wanted]).strip()
+    import_mjx_quietly()
+
+
+def import_mjx_quietly() -> None:
+    """Import MuJoCo's MJX without the "Failed to import warp" lines it prints when NVIDIA
+    Warp (an optional GPU backend jaxloco does not use) is not installed. Other output and
+    errors of the import pass through; :func:`configure` calls it."""
+    if "mujoco.mjx" in sys.modules:
+        return
+    buffer = io.StringIO()
+    with contextlib.redirect_stdout(buffer):
+        import mujoco.mjx  # noqa: F401, PLC0415
+    for line in buffer.getvalue().splitlines():
+        if not line.startswith(("Failed to import warp", "Failed to import mujoco_warp")):
+            print(line)
 
 
 def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path:

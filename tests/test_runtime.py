@@ -53,3 +53,20 @@ def test_configure_keeps_the_users_flags():
 def test_configure_rejects_a_negative_threshold():
     with pytest.raises(ValueError, match="small_loop_bytes"):
         configure(small_loop_bytes=-1)
+
+
+def test_configure_imports_mjx_without_the_warp_line():
+    """MJX prints "Failed to import warp" without NVIDIA Warp (an optional GPU backend);
+    after ``configure()`` a command's output does not carry it."""
+
+    def output(code):
+        out = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, timeout=300
+        )
+        assert out.returncode == 0, out.stderr
+        return out.stdout
+
+    if "warp" not in output("from mujoco import mjx"):
+        pytest.skip("this environment's MJX prints nothing on import (Warp installed?)")
+    configured = "from jaxloco.runtime import configure\nconfigure()\nfrom mujoco import mjx"
+    assert output(configured + "\nprint('ok')").strip() == "ok"
