@@ -248,7 +248,7 @@ def valkyrie():
     data.qpos[:] = keyframe_qpos(model, "walk")
     mujoco.mj_forward(model, data)
     ctrl = make_wblc(model, wblc_config("walking"))
-    refs = ctrl.hold_references(jnp.asarray(data.qpos))
+    refs = jax.jit(ctrl.hold_references)(jnp.asarray(data.qpos))  # one program, not eager
     for name in ("left_foot_ori", "right_foot_ori", "left_foot_pos", "right_foot_pos"):
         refs[name] = refs[name].replace(weight=jnp.zeros(()))
     tick = jax.jit(lambda q, v, refs, prev, gains: ctrl(q, v, refs, jnp.ones(2), gains, prev))
@@ -264,40 +264,48 @@ def test_one_tick_is_consistent(valkyrie):
     dg = out.diagnostics
     # Eq. 17 holds on the floating base: the torques realise qdd^d with the QP forces.
     assert float(jnp.max(jnp.abs(dg.base_residual))) < 1e-6
-    snap = ctrl.snapshot(q, v)
-    d = snap.data
-    jr = jnp.concatenate(
-        [
-            J.point_jacobian(ctrl.mx, d, d.site_xpos[s], int(model.site_bodyid[s]))
-            for s in ctrl.point_sites
+    com = ctrl.config.task("com")
+    gains = ctrl.default_gains()["com"]
+    feet = [model.site(f"{side}_foot_cop").id for side in ("left", "right")]
+
+    @jax.jit  # one program, not one per operation (eager MJX compiles hundreds)
+    def terms(q, v):
+        snap = ctrl.snapshot(q, v)
+        d = snap.data
+        jr = jnp.concatenate(
+            [
+                J.point_jacobian(ctrl.mx, d, d.site_xpos[s], int(model.site_bodyid[s]))
+                for s in ctrl.point_sites
+            ]
+        )
+        dynamics = (
+            snap.mass_matrix @ dg.qdd_desired
+            + snap.coriolis
+            + snap.gravity
+            - jr.T @ dg.contact_forces.reshape(-1)
+        )
+        contacts = [
+            (
+                J.frame_jacobian(ctrl.mx, d, d.site_xpos[s], int(model.site_bodyid[s])),
+                J.frame_jdot_qdot(ctrl.mx, d, d.site_xpos[s], int(model.site_bodyid[s])),
+            )
+            for s in feet
         ]
-    )
-    lhs = (
-        snap.mass_matrix @ dg.qdd_desired
-        + snap.coriolis
-        + snap.gravity
-        - jr.T @ dg.contact_forces.reshape(-1)
-    )
-    np.testing.assert_allclose(lhs, ctrl.selection.T @ out.torques, atol=1e-6)
+        jcom = J.com_jacobian(ctrl.mx, d)
+        return dynamics, contacts, jcom, J.com_jdot_qdot(ctrl.mx, d), snap.com, snap.total_mass
+
+    dynamics, contacts, jcom, jcom_dot_qdot, com_pos, total_mass = terms(q, v)
+    np.testing.assert_allclose(dynamics, ctrl.selection.T @ out.torques, atol=1e-6)
     # Feet held: contact rows met; CoM task met; forces produce the CoM force.
-    for side in ("left", "right"):
-        site = model.site(f"{side}_foot_cop").id
-        body = int(model.site_bodyid[site])
-        jc = J.frame_jacobian(ctrl.mx, d, d.site_xpos[site], body)
-        jdqd = J.frame_jdot_qdot(ctrl.mx, d, d.site_xpos[site], body)
+    for side, (jc, jdqd) in zip(("left", "right"), contacts, strict=True):
         kd = ctrl.default_gains()[f"{side}_contact"].kd
         np.testing.assert_allclose(jc @ dg.qdd_desired + jdqd, -kd * (jc @ v), atol=1e-6)
-    com = ctrl.config.task("com")
-    jcom = J.com_jacobian(ctrl.mx, d)
-    gains = ctrl.default_gains()["com"]
-    desired = gains.kp * (refs["com"].pos - snap.com) + gains.kd * (0 - jcom @ v)
-    np.testing.assert_allclose(
-        jcom @ dg.qdd_desired + J.com_jdot_qdot(ctrl.mx, d), desired, atol=1e-6
-    )
+    desired = gains.kp * (refs["com"].pos - com_pos) + gains.kd * (0 - jcom @ v)
+    np.testing.assert_allclose(jcom @ dg.qdd_desired + jcom_dot_qdot, desired, atol=1e-6)
     assert com.kind == "com"
     total_force = dg.contact_forces.sum(0)
     np.testing.assert_allclose(
-        total_force, snap.total_mass * (desired + np.array([0, 0, 9.81])), atol=1e-3
+        total_force, total_mass * (desired + np.array([0, 0, 9.81])), atol=1e-3
     )
     assert not bool(dg.qp_relaxed)
     # Limits are flagged, not clipped (random velocities ask for more than the neck has).
