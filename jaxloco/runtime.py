@@ -94,12 +94,15 @@ def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path
     """Turn on JAX's persistent compilation cache so a second run skips XLA compiles.
 
     Directory: ``cache_dir``, else ``$JAXLOCO_CACHE_DIR``, else ``~/.cache/jaxloco/xla``.
-    Only compiles that took at least 0.5 s are stored (small ones are cheaper to redo).
+    Every compile is stored, the small ones too: building a controller runs hundreds of
+    one-operation programs outside ``jit`` (MJX's ``put_model``, set-up arithmetic), and a
+    new process (a second run, each Dask worker) reads them back faster than it compiles
+    them again.
     """
     path = Path(cache_dir or os.environ.get("JAXLOCO_CACHE_DIR", DEFAULT_CACHE_DIR / "xla"))
     path.mkdir(parents=True, exist_ok=True)
     jax.config.update("jax_compilation_cache_dir", str(path))
-    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+    jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
     jax.config.update("jax_persistent_cache_min_entry_size_bytes", 0)
     return path
 
