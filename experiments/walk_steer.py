@@ -3,6 +3,7 @@
     jaxloco walk-steer                              # the paper's schedule
     jaxloco walk-steer 'segments=[[4,10.0]]' video=false
     jaxloco walk-steer gains_file=outputs/tune/tuned_gains.json   # tune-push's gains/gamma
+    jaxloco walk-steer viewer=true                  # watch it in MuJoCo's viewer (a display)
 
 The learned RL-PSP policy picks every footstep and its timing; the user gives only the
 heading change per step. Simulated in MuJoCo at 1 kHz under the walking WBLC.
@@ -42,6 +43,7 @@ from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
 from jaxloco.sim.scenarios import local_com_states, simulate_walk
+from jaxloco.sim.viewer import NoDisplayError, display_available, open_viewer
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +77,12 @@ class WalkSteerConfig(RunConfig):
     """RL-PSP checkpoint folder (``jaxloco train-planner`` writes one); empty: the shipped one."""
     video: bool = True
     video_fps: int = 10
+    viewer: bool = False
+    """Watch the walk in MuJoCo's passive viewer as it runs, no faster than real time
+    (slower where the controller and physics take longer than a timestep); needs a
+    display, and says so where there is none. The video is still written."""
+    viewer_fps: float = 60.0
+    """Viewer redraws per simulated second."""
     timeout_s: float = 1800.0
     dpi: int = 130
 
@@ -83,6 +91,12 @@ register("walk_steer", WalkSteerConfig)
 
 
 def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
+    if cfg.viewer and not display_available():
+        raise NoDisplayError(
+            "viewer=true needs a display, and this machine has none (DISPLAY and "
+            "WAYLAND_DISPLAY are unset); run where a screen is attached, forward X (ssh -X), "
+            "or drop viewer=true and watch the video it writes (walk_steer.gif)"
+        )
     robot, model, gait = robot_setup(cfg.robot, to_params(GaitParams, cfg.gait))
     turns = turn_schedule([tuple(s) for s in cfg.segments])
     planner = robot_planner(robot, model, load_planner(cfg.planner) if cfg.planner else None)
@@ -99,6 +113,7 @@ def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
         max_steps=total,
         physics=to_params(PhysicsParams, cfg.physics),
         progress="walk-steer",
+        watch=(lambda m, d: open_viewer(m, d, cfg.viewer_fps)) if cfg.viewer else None,
     )
     o, t = res.log.outputs, res.log.time
     heading = np.asarray(o.heading)

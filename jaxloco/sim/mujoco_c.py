@@ -50,6 +50,7 @@ def run_closed_loop(
     progress: bool | str = False,
     perturb: Callable[[mujoco.MjData], None] | None = None,
     done: Callable[[Log], bool] | None = None,
+    on_step: Callable[[mujoco.MjData], None] | None = None,
 ) -> tuple[ClosedLoopLog[Log], object]:
     """Run ``steps`` physics steps with ``ctrl = controller(t, qpos, qvel, carry)``.
 
@@ -58,6 +59,7 @@ def run_closed_loop(
     every step. ``stop(data)`` ends the run early (a fall).
     ``perturb(data)`` runs before every physics step (e.g. sets ``xfrc_applied`` for pushes);
     ``done(log)`` ends the run (not as a fall) when the controller's log says so.
+    ``on_step(data)`` runs after every physics step (e.g. a :mod:`.viewer` redraw).
     Returns the log and the final carry.
     """
     times, qpos, qvel, ctrl, logs = [], [], [], [], []
@@ -76,6 +78,8 @@ def run_closed_loop(
         if perturb is not None:
             perturb(data)
         mujoco.mj_step(model, data)
+        if on_step is not None:
+            on_step(data)
         if not np.all(np.isfinite(data.qpos)) or (stop is not None and stop(data)):
             fell = True
             break

@@ -7,6 +7,7 @@ For batches of robots use :mod:`jaxloco.sim.mjx_loop` (MJX) with the same contro
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 
 import jax
 import jax.numpy as jnp
@@ -47,13 +48,16 @@ def simulate_walk(
     fall_height: float | None = None,
     progress: bool | str = False,
     step=None,
+    watch: Callable[[mujoco.MjModel, mujoco.MjData], Callable[[mujoco.MjData], None]] | None = None,
 ) -> WalkRun:
     """Walk from the robot's keyframe for ``duration`` s (or until ``max_steps`` steps have
     begun), turning by ``turns`` (rad per step) and pushed by ``pushes``.
 
     ``step``: ``jax.jit(ctrl.step)`` to reuse across runs (default: jitted here, so each
     call traces again; the persistent compile cache saves the compile). ``fall_height``:
-    base height (m) that ends the run as a fall (default: the robot's)."""
+    base height (m) that ends the run as a fall (default: the robot's). ``watch(model,
+    data)``: opens a view of the run (e.g. :func:`.viewer.open_viewer`) and returns what
+    is called after every physics step; its ``close()``, if it has one, runs at the end."""
     fall_height = ctrl.robot.fall_height if fall_height is None else fall_height
     if duration <= 0:
         raise ValueError(f"duration must be > 0; got {duration}")
@@ -75,17 +79,23 @@ def simulate_walk(
             apply_push_c(sim_model, d, rows, body)
 
     done = None if max_steps is None else (lambda log: int(log.step) > max_steps)
-    log, _ = run_closed_loop(
-        sim_model,
-        data,
-        jax.jit(ctrl.step) if step is None else step,
-        state,
-        int(round(duration / model.opt.timestep)),
-        stop=lambda d: d.qpos[2] < fall_height,
-        progress=progress,
-        perturb=perturb,
-        done=done,
-    )
+    on_step = watch(sim_model, data) if watch is not None else None
+    try:
+        log, _ = run_closed_loop(
+            sim_model,
+            data,
+            jax.jit(ctrl.step) if step is None else step,
+            state,
+            int(round(duration / model.opt.timestep)),
+            stop=lambda d: d.qpos[2] < fall_height,
+            progress=progress,
+            perturb=perturb,
+            done=done,
+            on_step=on_step,
+        )
+    finally:
+        if hasattr(on_step, "close"):
+            on_step.close()
     steps = int(log.outputs.step[-1]) if len(log.time) else 0
     return WalkRun(log, tuple(pushes), steps, log.fell, float(log.time[-1]) if log.fell else None)
 
