@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import sys
+import threading
 import time
 from collections.abc import Callable
 from typing import Protocol
@@ -62,6 +63,8 @@ class RealTimeViewer:
         self.start_sim = 0.0
         self.last_frame = -float("inf")
         self.frames = 0
+        self.threads: list[threading.Thread] = []
+        """The viewer's drawing threads, joined by :meth:`close`."""
 
     def __call__(self, data: mujoco.MjData) -> None:
         if self.start_wall is None:
@@ -75,8 +78,13 @@ class RealTimeViewer:
         self.last_frame = float(data.time)
         self.frames += 1
 
-    def close(self) -> None:
+    def close(self, wait_s: float = 5.0) -> None:
+        """Close the window and wait (up to ``wait_s``) for the viewer's threads to end:
+        MuJoCo draws on a daemon thread, and a process that exits while it still draws can
+        crash in the GL driver (seen under Xvfb)."""
         self.handle.close()
+        for thread in self.threads:
+            thread.join(wait_s)
 
 
 def open_viewer(model: mujoco.MjModel, data: mujoco.MjData, fps: float = 60.0) -> RealTimeViewer:
@@ -92,4 +100,7 @@ def open_viewer(model: mujoco.MjModel, data: mujoco.MjData, fps: float = 60.0) -
         )
     import mujoco.viewer  # noqa: PLC0415 (GLFW: only where a window opens)
 
-    return RealTimeViewer(mujoco.viewer.launch_passive(model, data), fps=fps)
+    before = set(threading.enumerate())
+    viewer = RealTimeViewer(mujoco.viewer.launch_passive(model, data), fps=fps)
+    viewer.threads = [t for t in threading.enumerate() if t not in before]
+    return viewer
