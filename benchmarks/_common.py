@@ -22,7 +22,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from jaxloco.runtime import configure, quiet_jax_logs, to_jsonable  # noqa: E402
+from jaxloco.runtime import configure, quiet_library_logs, to_jsonable  # noqa: E402
 
 configure()  # before any benchmark computes: the XLA options users run with
 
@@ -35,7 +35,7 @@ def parse_args(description: str) -> argparse.Namespace:
         "--timeout", type=float, default=1800.0, help="watchdog: abort after this many seconds"
     )
     args = parser.parse_args()
-    quiet_jax_logs()
+    quiet_library_logs()
     return args
 
 

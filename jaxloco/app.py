@@ -35,7 +35,7 @@ from omegaconf import OmegaConf
 from jaxloco.locomotion.gait import GaitParams
 from jaxloco.locomotion.walking import robot_gait
 from jaxloco.robots import RobotDescription, robot_by_name
-from jaxloco.runtime import configure, enable_compilation_cache, quiet_jax_logs, watchdog
+from jaxloco.runtime import configure, enable_compilation_cache, quiet_library_logs, watchdog
 from jaxloco.sweep.limits import PAPER_MASS
 
 
@@ -121,11 +121,11 @@ def robot_setup(name: str, gait: GaitParams | None = None) -> RobotSetup:
 
 
 def run_in_hydra(cfg, run: Callable, as_object: bool = True) -> tuple[dict, Path]:
-    """Inside a hydra main: quiet JAX's plug-in logs, turn on the compile cache, and call
-    ``run(config, out_dir)`` under the watchdog (``cfg.timeout_s``), with hydra's run
-    directory and the config as its dataclass (``as_object``) or as hydra's node. Returns
-    the summary and the directory."""
-    quiet_jax_logs()
+    """Inside a hydra main: quiet the libraries' INFO lines (:func:`quiet_library_logs`),
+    turn on the compile cache, and call ``run(config, out_dir)`` under the watchdog
+    (``cfg.timeout_s``), with hydra's run directory and the config as its dataclass
+    (``as_object``) or as hydra's node. Returns the summary and the directory."""
+    quiet_library_logs()
     enable_compilation_cache()
     out_dir = Path(HydraConfig.get().runtime.output_dir)
     config = OmegaConf.to_object(cfg) if as_object else cfg

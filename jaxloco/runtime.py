@@ -145,9 +145,22 @@ def watchdog(seconds: float, what: str = "this run"):
         faulthandler.cancel_dump_traceback_later()
 
 
-def quiet_jax_logs() -> None:
-    """Hide JAX's INFO lines about accelerator plug-ins it did not find (e.g. no TPU)."""
+def quiet_library_logs() -> None:
+    """Hide INFO lines a user cannot act on: JAX's about accelerator plug-ins it did not
+    find (e.g. no TPU) and MJX's "Using JAX default device" (logged on the root logger at
+    every ``put_model``). Dask's are quieted where its client lives
+    (:func:`jaxloco.sweep.cluster.dask_client`)."""
     logging.getLogger("jax._src.xla_bridge").setLevel(logging.WARNING)
+    root = logging.getLogger()
+    if not any(isinstance(f, _MjxDeviceLine) for f in root.filters):
+        root.addFilter(_MjxDeviceLine())
+
+
+class _MjxDeviceLine(logging.Filter):
+    """Drops MJX's "Using JAX default device: ..." record."""
+
+    def filter(self, record: logging.LogRecord) -> bool:
+        return not str(record.msg).startswith("Using JAX default device")
 
 
 def to_jsonable(obj):

@@ -23,6 +23,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import hashlib
+import logging
 import time
 from collections.abc import Sequence
 
@@ -101,11 +102,27 @@ def local_cluster(workers: int) -> LocalCluster:
 
 
 @contextlib.contextmanager
+def quiet_dask_logs():
+    """Dask's INFO lines (workers registered, streams opened and closed at shutdown) hidden
+    while it lasts; its warnings and errors still show. A level a user chose (e.g. DEBUG by
+    ``hydra.verbose=distributed``) is kept."""
+    logger = logging.getLogger("distributed")
+    level = logger.level
+    if level in (logging.NOTSET, logging.INFO):
+        logger.setLevel(logging.WARNING)
+    try:
+        yield
+    finally:
+        logger.setLevel(level)
+
+
+@contextlib.contextmanager
 def dask_client(address: str | None = None, workers: int = 2):
     """A Dask client with the sweep plugin registered: of the cluster whose scheduler is at
     ``address`` (e.g. ``tcp://head:8786``), or of a local cluster of ``workers`` processes,
     one pinned per core (closed on exit)."""
     with contextlib.ExitStack() as stack:
+        stack.enter_context(quiet_dask_logs())
         if address:
             client = stack.enter_context(Client(address))
             cores = None
