@@ -43,7 +43,7 @@ from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
 from jaxloco.sim.scenarios import local_com_states, simulate_walk
-from jaxloco.sim.viewer import NoDisplayError, display_available, open_viewer
+from jaxloco.sim.viewer import open_viewer, require_display
 
 log = logging.getLogger(__name__)
 
@@ -91,12 +91,8 @@ register("walk_steer", WalkSteerConfig)
 
 
 def run(cfg: WalkSteerConfig, out_dir: Path) -> dict:
-    if cfg.viewer and not display_available():
-        raise NoDisplayError(
-            "viewer=true needs a display, and this machine has none (DISPLAY and "
-            "WAYLAND_DISPLAY are unset); run where a screen is attached, forward X (ssh -X), "
-            "or drop viewer=true and watch the video it writes (walk_steer.gif)"
-        )
+    if cfg.viewer:
+        require_display()  # before anything is built or compiled
     robot, model, gait = robot_setup(cfg.robot, to_params(GaitParams, cfg.gait))
     turns = turn_schedule([tuple(s) for s in cfg.segments])
     planner = robot_planner(robot, model, load_planner(cfg.planner) if cfg.planner else None)

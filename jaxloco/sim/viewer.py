@@ -87,17 +87,22 @@ class RealTimeViewer:
             thread.join(wait_s)
 
 
-def open_viewer(model: mujoco.MjModel, data: mujoco.MjData, fps: float = 60.0) -> RealTimeViewer:
-    """MuJoCo's passive viewer on ``model``/``data``, paced to real time.
-
-    Raises :class:`NoDisplayError` where no window can open (no ``DISPLAY`` or
-    ``WAYLAND_DISPLAY`` on Linux, e.g. over SSH or in CI)."""
+def require_display() -> None:
+    """Raise :class:`NoDisplayError`, saying what to do instead, where no window can open."""
     if not display_available():
         raise NoDisplayError(
             "viewer=true needs a display, and this machine has none (DISPLAY and "
             "WAYLAND_DISPLAY are unset); run where a screen is attached, forward X (ssh -X), "
             "or keep viewer=false and watch the recorded video (video=true)"
         )
+
+
+def open_viewer(model: mujoco.MjModel, data: mujoco.MjData, fps: float = 60.0) -> RealTimeViewer:
+    """MuJoCo's passive viewer on ``model``/``data``, paced to real time.
+
+    Raises :class:`NoDisplayError` where no window can open (no ``DISPLAY`` or
+    ``WAYLAND_DISPLAY`` on Linux, e.g. over SSH or in CI)."""
+    require_display()
     import mujoco.viewer  # noqa: PLC0415 (GLFW: only where a window opens)
 
     before = set(threading.enumerate())
