@@ -489,9 +489,12 @@ def test_cam_reference_is_the_momentum_of_the_commanded_turn_and_the_arm_return(
     qd = np.zeros(model.nv)
     qd[3:6] = R.T @ np.array([0.0, 0.0, yaw_rate])  # world-z turn, in the base frame
     qd[list(arms.dof)] = rate * (np.asarray(ctrl.posture[ARM_TASK].pos) - q[list(arms.qpos)])
-    snap = ctrl.wblc.snapshot(jnp.asarray(q, jnp.float32), jnp.zeros(model.nv, jnp.float32))
+    # Jitted: op by op, the snapshot alone is hundreds of small compiles.
+    snap = jax.jit(type(ctrl.wblc).snapshot)(
+        ctrl.wblc, jnp.asarray(q, jnp.float32), jnp.zeros(model.nv, jnp.float32)
+    )
     body = gait_lib.yaw_reference(Motion(jnp.float32(2.3), jnp.float32(yaw_rate), jnp.float32(0.4)))
-    ref = _cam_reference(ctrl, snap, jnp.asarray(q, jnp.float32), body)
+    ref = jax.jit(_cam_reference)(ctrl, snap, jnp.asarray(q, jnp.float32), body)
     expected = np.asarray(snap.centroidal_matrix[:3]) @ qd
     assert np.linalg.norm(expected) > 1.0  # a real momentum, not a trivial match
     np.testing.assert_allclose(ref.pos, expected, rtol=1e-4, atol=1e-3)

@@ -71,7 +71,8 @@ def shaking_simulator(
     data0 = mujoco.MjData(model)
     data0.qpos[:] = robot.keyframe_qpos(model)
     mujoco.mj_forward(model, data0)
-    refs0 = ctrl.hold_references(jnp.asarray(data0.qpos))
+    # From MuJoCo C's kinematics: no tracing (MJX's, op by op, is hundreds of compiles).
+    refs0 = ctrl.hold_references_at(model, data0.qpos)
     q0 = refs0["body_ori"].pos
     contact = jnp.ones(2)
     points = jnp.asarray(ctrl.point_sites)

@@ -114,8 +114,8 @@ def shaking_loss(
     ctrl = make_wblc(model, body_shaking_config(params.hierarchy, pinv_rtol=params.pinv_rtol))
     mx = ctrl.mx
     qpos0 = jnp.asarray(keyframe_qpos(model, "walk"))
+    refs0 = ctrl.hold_references_at(model, qpos0)  # MuJoCo C: no program to compile
     # Jitted: op by op (eager), MJX's kinematics took ~40 s to build this on 2 CPU cores.
-    refs0 = jax.jit(ctrl.hold_references)(qpos0)
     snap0 = jax.jit(ctrl.snapshot)(qpos0, jnp.zeros(model.nv))
     com0 = snap0.com
     points = jnp.asarray(ctrl.point_sites)
