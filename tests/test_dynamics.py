@@ -192,11 +192,11 @@ def test_jdot_qdot_matches_jvp_of_the_jacobian():
         d = mjx.com_pos(mx, d)
         return J.frame_jacobian(mx, d, d.site_xpos[sid], body) @ qvel
 
-    _, jdot_qdot = jax.jvp(jacobian, (0.0,), (1.0,))
+    # Jitted: op by op, the kinematics' jvp and the Lie-group terms are hundreds of compiles.
+    _, jdot_qdot = jax.jit(lambda: jax.jvp(jacobian, (0.0,), (1.0,)))()
     dx = jax.jit(J.smooth)(mx, dx0)
-    np.testing.assert_allclose(
-        J.frame_jdot_qdot(mx, dx, jnp.asarray(data.site_xpos[sid]), body), jdot_qdot, atol=1e-9
-    )
+    lie = jax.jit(lambda dx, p: J.frame_jdot_qdot(mx, dx, p, body))
+    np.testing.assert_allclose(lie(dx, jnp.asarray(data.site_xpos[sid])), jdot_qdot, atol=1e-9)
 
 
 def test_joint_space_terms_match_mujoco():

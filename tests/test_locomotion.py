@@ -517,7 +517,7 @@ def test_mjx_and_mujoco_c_agree_through_liftoff(walker):
     cstate = jax.jit(WalkingController.init)(ctrl, jnp.asarray(q0))
     pushes = PushArrays.none()
     mx = mjx.put_model(physics)
-    state = mjx_loop.init_loop_state(mx, q0, cstate)
+    state = jax.jit(mjx_loop.init_loop_state)(mx, q0, cstate)  # eager mjx.forward: ~400 compiles
     roll = jax.jit(lambda s: mjx_loop.rollout(mx, ctrl.step, s, pushes, 1, steps, 100))
     final, logs = roll(state)
     assert not bool(final.fell)
