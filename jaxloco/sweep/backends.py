@@ -136,6 +136,10 @@ class CBatchBackend:
 
         self._ctrl = ctrl
         self._ticks = {}  # one compiled tick per layout of the controller state
+        # A chunk's set-up and read-out, each one program (op by op, vmapped packing was
+        # about 50 small compiles per chunk size in every new process).
+        self._pack = {}
+        self._unpack = {}
 
     def _tick_for(self, layout: TreeLayout):
         """The vmapped tick over packed states: ``(t, qpos, qvel, packed, alive) -> (torques
@@ -170,10 +174,18 @@ class CBatchBackend:
         ctrl, xfrc = batch.bind("ctrl"), batch.bind("xfrc_applied")
         cstate = jax.tree.map(jnp.asarray, starts.controller)
         pushes = PushArrays(*(jnp.asarray(x) for x in starts.pushes))
-        carry = (cstate, jax.vmap(init_outcome)(cstate), pushes)
-        layout = TreeLayout.of(jax.tree.map(lambda x: x[0], carry))
+        one = jax.eval_shape(
+            lambda c, p: (c, init_outcome(c), p),
+            *jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), (cstate, pushes)),
+        )
+        layout = TreeLayout.of(one)
         tick = self._tick_for(layout)
-        packed = jax.vmap(layout.pack)(carry)
+        if layout not in self._pack:
+            self._pack[layout] = jax.jit(
+                jax.vmap(lambda c, p: layout.pack((c, init_outcome(c), p)))
+            )
+            self._unpack[layout] = jax.jit(jax.vmap(lambda packed: layout.unpack(packed)[1]))
+        packed = self._pack[layout](cstate, pushes)
         nu = m.nu
         t0 = starts.times.copy()
         alive = np.ones(n, bool)
@@ -193,7 +205,7 @@ class CBatchBackend:
             alive &= ~fell
             if progress is not None:
                 progress(n)
-        _, outcome, _ = jax.vmap(layout.unpack)(packed)
+        outcome = self._unpack[layout](packed)
         fell = ~alive
         return outcome.replace(
             fell=jnp.asarray(fell),
