@@ -139,25 +139,33 @@ TORQUE_ROWS_TARGET = "torque rows in the force QP, batch 64, over the plain tick
 
 
 def torque_limits_cost(model, refs, q, batch: int, rounds: int) -> dict:
-    """The batched tick with and without ``torque_limits_in_qp``, interleaved: what keeping
-    the legs within their effort limits costs."""
+    """The batched tick without limits, with ``torque_limits_in_qp`` and with
+    ``whole_body_limits`` on top, interleaved: what keeping the legs, then every joint,
+    within their effort limits costs."""
     contact = jnp.ones(2, jnp.float32)
     v = jnp.asarray(np.random.default_rng(1).normal(0, 0.1, (batch, model.nv)), jnp.float32)
     qb = jnp.broadcast_to(q, (batch, model.nq))
     calls, compile_s = {}, 0.0
-    for name, flag in (("plain", False), ("limited", True)):
-        c = make_wblc(model, walking_config(torque_limits_in_qp=flag))
+    settings = {
+        "plain": {"torque_limits_in_qp": False},
+        "limited": {"torque_limits_in_qp": True},
+        "whole_body": {"torque_limits_in_qp": True, "whole_body_limits": True},
+    }
+    for name, flags in settings.items():
+        c = make_wblc(model, walking_config(**flags))
         prev = c.initial_qp_state(jnp.float32)
         pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
         tick = jax.jit(jax.vmap(lambda q, v, p, c=c: c(q, v, refs, contact, previous=p)))
         seconds, compiled = compile_seconds(tick, qb, v, pb)
-        compile_s = seconds if flag else compile_s
+        compile_s = seconds if name == "limited" else compile_s
         calls[name] = (lambda compiled=compiled, pb=pb: compiled(qb, v, pb), batch)
     t = interleaved(calls, rounds)
     return dict(
         plain_us=t["plain"] * 1e6,
         limited_us=t["limited"] * 1e6,
+        whole_body_us=t["whole_body"] * 1e6,
         ratio=1.0 / t["plain/limited"],
+        whole_body_ratio=1.0 / t["plain/whole_body"],
         compile_s=compile_s,
         rounds=rounds,
     )
@@ -512,6 +520,8 @@ def main():
                 ("limited_us", "with torque rows us/robot-tick", ".1f"),
                 ("compile_s", "compile s (with rows)", ".1f"),
                 ("ratio", "with rows / without (median per round)", ".3f"),
+                ("whole_body_us", "rows + whole-body stage us/robot-tick", ".1f"),
+                ("whole_body_ratio", "rows + stage / without", ".3f"),
             ],
         )
     )

@@ -119,6 +119,10 @@ class PushSweepConfig(RunConfig):
     """Keep the legs' torques within the model's effort limits in the force QP
     (``WBLCConfig.torque_limits_in_qp``); pair with ``physics.torque_limit=model``. None:
     the robot's default (Valkyrie: off; the others: on)."""
+    whole_body_limits: Optional[bool] = None  # noqa: UP045
+    """Keep every joint's torque within its effort limit in the controller's last stage
+    (``WBLCConfig.whole_body_limits``), the lowest tasks giving way. None: the robot's
+    default."""
     planner: str = ""
     """A step-policy checkpoint folder (``jaxloco train-planner`` writes one); empty: the
     shipped default. Use a new run directory for another policy."""
@@ -151,6 +155,7 @@ def controller_settings(cfg) -> dict:
                 whiten_tasks=cfg.whiten_tasks,
                 torque_pinv_rtol=cfg.torque_pinv_rtol,
                 torque_limits_in_qp=cfg.torque_limits_in_qp,
+                whole_body_limits=cfg.whole_body_limits,
                 force_qp=to_params(ForceQPParams, cfg.force_qp),
                 **({"hierarchy_inverse": cfg.hierarchy_inverse} if cfg.hierarchy_inverse else {}),
             ),

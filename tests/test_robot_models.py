@@ -42,6 +42,7 @@ from jaxloco.robots.h1 import H1
 from jaxloco.robots.model_source import package_root
 from jaxloco.runtime import assets_dir
 from jaxloco.sim import run_closed_loop
+from jaxloco.sim.push import Push
 from jaxloco.sim.scenarios import simulate_walk
 
 PACKAGED = (G1, APOLLO)
@@ -283,19 +284,34 @@ def test_g1_stands_under_wblc_at_its_limits(models):
     assert np.all(np.abs(log.ctrl) <= effort_limits(model) + 1e-6)
 
 
-def test_g1_walks_three_steps_on_mujoco_c(models):
+def test_g1_walks_three_steps_pushed_with_the_whole_body_within_its_limits(models):
     """From its keyframe, at the G1's own effort limits, with the Froude-scaled gait and its
-    shipped step policy: three steps begun, no fall, no failed plan."""
+    shipped step policy, the whole-body limit stage on and a 4 N s push from the side
+    during the second step: three steps begun, no fall, no failed plan; every torque the
+    controller commands within its joint's limit, the stage acting on some ticks and
+    reporting which tasks gave way there (and none elsewhere); the feet in contact held."""
     model = models["g1"]
-    ctrl = make_walking_controller(model, robot=G1)
+    ctrl = make_walking_controller(
+        model, config=walking_config(G1, whole_body_limits=True), robot=G1
+    )
     assert ctrl.gait_params == robot_gait(G1, model)
     assert ctrl.psp.h == pytest.approx(ctrl.gait_params.com_height)
-    run = simulate_walk(model, ctrl, 4.0, max_steps=3)
+    push = Push(magnitude=40.0, direction_deg=90.0, start=1.3, duration=0.1)
+    run = simulate_walk(model, ctrl, 4.0, max_steps=3, pushes=(push,))
     assert not run.fell and run.steps_taken > 3
     o = run.log.outputs
     assert int(o.failed_plans[-1]) == 0
     feet = np.asarray(o.feet)
     assert feet[-1, :, 0].max() > 0.2  # it went forward
+    assert np.all(np.abs(run.log.ctrl) <= effort_limits(model) * (1 + 1e-5))
+    limited = np.asarray(o.limited)
+    assert 0 < limited.sum() < len(limited)
+    relaxation = np.asarray(o.relaxation.values)
+    assert np.all(relaxation[~limited] == 0.0)
+    assert np.all(relaxation[limited].max(axis=1) > 0.0)
+    # The feet in contact are held: their relaxation is small next to the others'.
+    contact = np.stack([o.relaxation[n][:, 0] for n in o.relaxation.names if "contact" in n])
+    assert contact.max() < 0.05 * relaxation.max()
 
 
 def test_a_ci_sized_limit_search_on_the_g1(tmp_path):

@@ -122,11 +122,13 @@ WALKING_INVERSES = ("damped",) + ("truncated",) * (len(WALKING) - 2) + ("damped"
 def walking_config(robot: RobotDescription = DEFAULT_ROBOT, **overrides) -> WBLCConfig:
     """The walking hierarchy with the warm-started force QP settings (``CLOSED_LOOP_QP``),
     damped inverses at its first and last levels (``WALKING_INVERSES``), and the robot's
-    default for torque rows in the force QP (``torque_limits_in_qp``; None: the robot's)."""
+    defaults for torque rows in the force QP and the whole-body limit stage
+    (``torque_limits_in_qp``, ``whole_body_limits``; None: the robot's)."""
     overrides.setdefault("force_qp", CLOSED_LOOP_QP)
     overrides.setdefault("hierarchy_inverse", WALKING_INVERSES)
-    if overrides.get("torque_limits_in_qp") is None:
-        overrides["torque_limits_in_qp"] = robot.torque_limits_in_qp
+    for field in ("torque_limits_in_qp", "whole_body_limits"):
+        if overrides.get(field) is None:
+            overrides[field] = getattr(robot, field)
     return wblc_config("walking", robot, **overrides)
 
 

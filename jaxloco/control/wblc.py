@@ -56,6 +56,7 @@ from jaxloco.control.tasks import (
     task_index,
     task_terms,
 )
+from jaxloco.control.torque_limits import TorqueLimitParams, TorqueLimitSolution, limit_torques
 from jaxloco.dynamics import jacobians as jac
 from jaxloco.dynamics.model import without_colliders
 
@@ -116,6 +117,14 @@ class WBLCConfig:
     (``qp_torque_excess``), and the upper body's torques, which the forces do not reach, are
     the hierarchy's (flagged in ``torque_over_limit``). Off: the paper's WBLC, torques
     unbounded."""
+    whole_body_limits: bool = False
+    """Bring every actuator's torque within its effort limit (control range times gear)
+    in a last stage (:mod:`jaxloco.control.torque_limits`): the smallest change of the
+    torques, in units of each limit, that keeps the feet in contact held; the other tasks
+    give way, by what ``task_relaxation`` reports. Off: the torques leave the controller
+    as the hierarchy and the force QP ask (``torque_over_limit`` flags the excess)."""
+    torque_limit_stage: TorqueLimitParams = TorqueLimitParams()
+    """The limit stage's solver settings (with ``whole_body_limits``)."""
 
     def __post_init__(self):
         names = [t.name for t in self.tasks]
@@ -187,7 +196,15 @@ class WBLCDiagnostics:
     base_residual: jax.Array
     """Floating-base rows of Eq. 17 left unmet (6,): 0 when the torques realise qdd^d."""
     torque_over_limit: jax.Array
-    """(nu,) True where the torque exceeds the actuator's limit (not clipped here)."""
+    """(nu,) True where the output torque exceeds the actuator's limit (by more than
+    1e-5 of it); never with ``whole_body_limits``."""
+    torque_limit: TorqueLimitSolution
+    """The limit stage's change of the torques (``whole_body_limits``; without it, no
+    change)."""
+    task_relaxation: Segments
+    """Per task (by name), the change of its acceleration the limit stage makes
+    (``J_k dqdd``; m/s^2 or rad/s^2): what each task gives way to keep the torques within
+    their limits. Zero without ``whole_body_limits``."""
     task_errors: Segments
     """Per task (by name), its position error (rotation vector for orientations)."""
     level_residuals: Segments
@@ -399,6 +416,8 @@ def wblc_tick(
     with jax.named_scope("wblc.torques"):
         qdd_task = hier.qdd @ forces.cam_shift
         torques = torque_stage(ctrl, snap, hier, qdd_task, forces.solution.forces)
+    with jax.named_scope("wblc.limits"):
+        limited = limit_stage(ctrl, snap, terms, torques.torques)
 
     cfg, sol = ctrl.config, forces.solution
     diagnostics = WBLCDiagnostics(
@@ -411,7 +430,11 @@ def wblc_tick(
         qp_primal_residual=sol.primal_residual,
         qp_torque_excess=sol.torque_excess,
         base_residual=torques.base_residual,
-        torque_over_limit=jnp.abs(torques.torques) > ctrl.torque_limits,
+        torque_over_limit=jnp.abs(limited.torques) > ctrl.torque_limits * (1 + 1e-5),
+        torque_limit=limited,
+        task_relaxation=Segments.stack(
+            {n: t.jacobian @ limited.acceleration_change for n, t in terms.items()}
+        ),
         task_errors=Segments.stack({n: t.error for n, t in terms.items()}),
         level_residuals=Segments(
             jnp.concatenate(hier.task_residuals, axis=0) @ forces.cam_shift,
@@ -419,7 +442,7 @@ def wblc_tick(
             tuple(r.shape[0] for r in hier.task_residuals),
         ),
     )
-    return WBLCOutput(torques.torques, diagnostics, sol.warm_start)
+    return WBLCOutput(limited.torques, diagnostics, sol.warm_start)
 
 
 def task_stage(
@@ -581,6 +604,33 @@ def torque_stage(
     )
     return torque_solution(
         ctrl, hier.mass_times_null_space(), tau_task, ctrl.config.torque_pinv_rtol
+    )
+
+
+def limit_stage(ctrl: WBLC, snap: RobotSnapshot, terms: dict, torques) -> TorqueLimitSolution:
+    """Stage 5: with ``whole_body_limits``, every torque within its effort limit, the
+    contact tasks' rows (the feet in contact) held (:func:`limit_torques`); without it,
+    the torques unchanged."""
+    cfg = ctrl.config
+    if not cfg.whole_body_limits:
+        zero = jnp.zeros_like(torques)
+        return TorqueLimitSolution(
+            torques=torques,
+            torque_change=zero,
+            acceleration_change=jnp.zeros_like(snap.data.qvel),
+            held_residual=jnp.zeros((), torques.dtype),
+            active=jnp.zeros((), bool),
+        )
+    held = [terms[t.name].jacobian for t in cfg.tasks if t.kind == "contact" and t.name in terms]
+    nv = snap.data.qvel.shape[0]
+    held = jnp.concatenate(held, axis=0) if held else jnp.zeros((0, nv), torques.dtype)
+    return limit_torques(
+        torques,
+        ctrl.torque_limits,
+        ctrl.selection,
+        snap.mass_cholesky_inverse,
+        held,
+        cfg.torque_limit_stage,
     )
 
 

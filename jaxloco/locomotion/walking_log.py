@@ -12,6 +12,7 @@ import jax
 import jax.numpy as jnp
 from flax import struct
 
+from jaxloco.control.segments import Segments
 from jaxloco.control.wblc import WBLCOutput
 from jaxloco.locomotion.gait import GaitReferences, GaitState
 
@@ -64,6 +65,12 @@ class WalkingLog:
     """() bool, the force QP relaxed its friction cone this tick."""
     over_limit: jax.Array
     """() bool, some joint torque exceeded its effort limit this tick."""
+    limited: jax.Array
+    """() bool, the controller's limit stage changed the torques this tick to keep them
+    within their limits (``WBLCConfig.whole_body_limits``)."""
+    relaxation: Segments
+    """Per task (by name, one value each), the norm of the acceleration change the limit
+    stage made it give way (m/s^2 or rad/s^2; 0 when the stage did not act)."""
 
     @classmethod
     def of(
@@ -99,4 +106,11 @@ class WalkingLog:
             torque_norm=jnp.linalg.norm(out.torques),
             relaxed=out.diagnostics.qp_relaxed,
             over_limit=jnp.any(out.diagnostics.torque_over_limit),
+            limited=out.diagnostics.torque_limit.active,
+            relaxation=Segments.stack(
+                {
+                    name: jnp.linalg.norm(change, keepdims=True)
+                    for name, change in out.diagnostics.task_relaxation.as_dict().items()
+                }
+            ),
         )

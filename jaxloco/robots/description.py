@@ -121,6 +121,9 @@ class RobotDescription:
     torque_limits_in_qp: bool = False
     """Whether the walking controller keeps the legs' torques within the model's effort
     limits in its force QP by default (``WBLCConfig.torque_limits_in_qp``)."""
+    whole_body_limits: bool = False
+    """Whether the walking controller keeps every joint's torque within its effort limit
+    by default (``WBLCConfig.whole_body_limits``)."""
     planner: str = "default"
     """The shipped step policy its walking controller loads by default (a key of
     :data:`jaxloco.learning.checkpoint.SHIPPED_POLICIES`)."""
