@@ -276,7 +276,8 @@ def momentum_rate_by_jvp(model, data, averaged):
             jcm = jnp.linalg.solve(C.centroidal_inertia(mx, d), jcm)
         return jcm @ qvel
 
-    return jax.jvp(momentum, (0.0,), (1.0,))[1]
+    # Jitted: op by op, MJX's kinematics and the jvp are hundreds of one-op compiles.
+    return jax.jit(lambda: jax.jvp(momentum, (0.0,), (1.0,))[1])()
 
 
 def test_eq31_holds_exactly_for_momentum_but_not_for_averaged_velocity():
@@ -284,19 +285,24 @@ def test_eq31_holds_exactly_for_momentum_but_not_for_averaged_velocity():
     mx = mjx.put_model(model)
     data = random_state(model, 11)
     dx = jax.jit(J.smooth)(mx, mjx.put_data(model, data))
-    terms = joint_space_terms(mx, dx, smoothed=True)
-    jcm = C.centroidal_momentum_matrix(mx, dx)
-    eq31 = C.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis)
-    # The same by products with the Cholesky factor's inverse (as a WBLC tick computes it).
-    chol = jnp.linalg.cholesky(terms.mass_matrix)
-    chol_inv = jax.scipy.linalg.solve_triangular(chol, jnp.eye(chol.shape[0]), lower=True)
-    by_inverse = C.centroidal_bias(jcm, None, terms.coriolis, mass_cholesky_inverse=chol_inv)
+
+    @jax.jit  # op by op, these are hundreds of one-op compiles
+    def bias_terms(dx):
+        terms = joint_space_terms(mx, dx, smoothed=True)
+        jcm = C.centroidal_momentum_matrix(mx, dx)
+        eq31 = C.centroidal_bias(jcm, terms.mass_matrix, terms.coriolis)
+        # The same by products with the Cholesky factor's inverse (as a WBLC tick does).
+        chol = jnp.linalg.cholesky(terms.mass_matrix)
+        chol_inv = jax.scipy.linalg.solve_triangular(chol, jnp.eye(chol.shape[0]), lower=True)
+        by_inverse = C.centroidal_bias(jcm, None, terms.coriolis, mass_cholesky_inverse=chol_inv)
+        return eq31, by_inverse, C.centroidal_inertia(mx, dx)
+
+    eq31, by_inverse, i_g = bias_terms(dx)
     np.testing.assert_allclose(by_inverse, eq31, rtol=1e-9, atol=1e-9)
     # Momentum: exact, angular and linear parts alike.
     np.testing.assert_allclose(eq31, momentum_rate_by_jvp(model, data, False), atol=1e-8)
     # An averaged velocity I_G^-1 h: Eq. 31 misses the d/dt(I_G^-1) h term.
-    i_g = C.centroidal_inertia(mx, dx)
-    averaged_eq31 = jnp.linalg.solve(i_g, eq31)
+    averaged_eq31 = np.linalg.solve(np.asarray(i_g), np.asarray(eq31))
     averaged_true = momentum_rate_by_jvp(model, data, True)
     gap = np.abs(np.asarray(averaged_eq31 - averaged_true))
     assert gap[:3].max() > 1e-2  # the angular part differs...

@@ -314,6 +314,7 @@ def test_g1_walks_three_steps_pushed_with_the_whole_body_within_its_limits(model
     assert contact.max() < 0.05 * relaxation.max()
 
 
+@pytest.mark.slow  # ~140 s in the suite; CI keeps the G1's configs and its pushed walk
 def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
     """`jaxloco push-sweep robot=g1`: one cell, one round, one replica, a short horizon. The
     G1's defaults follow the robot (its effort limits, MuJoCo's solver, its fall height, a

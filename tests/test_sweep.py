@@ -240,6 +240,7 @@ def chunks_of_one(tmp_path_factory):
     return stopped, stopped_walks, resumed, walks
 
 
+@pytest.mark.slow  # ~75 s beyond the shared sweep; CI keeps the main job's resume and Dask's
 def test_ci_sweep_on_mujoco_c_resumes_and_does_not_depend_on_chunking(tmp_path, chunks_of_one):
     """A real sweep (C backend): two pushes in one chunk of 2, and in chunks of 1 (stopped
     after one chunk, then resumed from the walk kept on disk) give the same outcomes."""
