@@ -106,6 +106,7 @@ class RobotSetup(NamedTuple):
     """What an experiment builds its controller from."""
 
     robot: RobotDescription
+    """The robot's description."""
     model: mujoco.MjModel
     """The robot's model, checked against its description."""
     gait: GaitParams

@@ -95,3 +95,34 @@ def test_only_the_runtime_changes_jax_config_for_the_process():
         and node.value.attr == "config"
     ]
     assert not calls, "\n".join(calls)
+
+
+def _is_record(node: ast.ClassDef) -> bool:
+    """A dataclass (``dataclasses``' or flax's) or a ``NamedTuple``."""
+    decorators = [ast.unparse(d) for d in node.decorator_list]
+    bases = [ast.unparse(b) for b in node.bases]
+    return any("dataclass" in d for d in decorators) or "NamedTuple" in bases
+
+
+def test_every_dataclass_field_has_a_docstring():
+    """Each field of every dataclass and NamedTuple in the package is followed by its
+    docstring line: what it is, in which units and shape."""
+    missing = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if not (isinstance(node, ast.ClassDef) and _is_record(node)):
+                continue
+            for stmt, following in zip(node.body, [*node.body[1:], None], strict=True):
+                if not (isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name)):
+                    continue
+                if "ClassVar" in ast.unparse(stmt.annotation):
+                    continue
+                documented = (
+                    isinstance(following, ast.Expr)
+                    and isinstance(following.value, ast.Constant)
+                    and isinstance(following.value.value, str)
+                )
+                if not documented:
+                    where = path.relative_to(PACKAGE.parent)
+                    missing.append(f"{where}:{stmt.lineno} {node.name}.{stmt.target.id}")
+    assert not missing, "fields without a docstring:\n" + "\n".join(missing)

@@ -57,8 +57,12 @@ class ForceQPParams:
     ft_max: float = 1000.0
     """Largest tangential force per axis (N)."""
     weight_tangential: float = 1.0
+    """Weight of the tangential forces squared, ``w_t`` (forces in ``force_scale`` units)."""
     weight_normal: float = 0.5
+    """Weight of the normal forces squared, ``w_n``."""
     weight_angular: float = 5000.0
+    """Weight of the CAM rate's miss squared, ``w_ang``: the moment is soft, and this makes it
+    nearly hard."""
     iterations: int = 500
     """ADMM iterations (unrolled). The default is for a cold start: against quadprog on
     1000 random single and double support problems every objective is within 1e-3 relative

@@ -20,7 +20,9 @@ class Segments:
     values: jax.Array
     """(..., sum(sizes)) the pieces, in order."""
     names: tuple[str, ...] = struct.field(pytree_node=False)
+    """The pieces' names, in order (static)."""
     sizes: tuple[int, ...] = struct.field(pytree_node=False)
+    """Each piece's length, in order (static)."""
 
     @classmethod
     def stack(cls, pieces: dict[str, jax.Array]) -> Segments:

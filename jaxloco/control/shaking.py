@@ -23,10 +23,13 @@ from jaxloco import validation as v
 @dataclasses.dataclass(frozen=True)
 class ShakingParams:
     roll_amplitude: float = 0.15
+    """Roll amplitude of the body's rotation vector (rad)."""
     pitch_amplitude: float = 0.1
+    """Pitch amplitude (rad)."""
     yaw_amplitude: float = 0.3
     """Rotation-vector amplitudes (rad)."""
     frequency_hz: float = 1.0
+    """Shaking frequency (Hz)."""
     ramp: float = 0.5
     """Seconds over which the amplitude ramps up from zero (0: no ramp)."""
 

@@ -44,11 +44,17 @@ class TaskSpec:
     names) and default PD gains (a number, or one per row)."""
 
     name: str
+    """Unique name; the key of the task's reference, gains and diagnostics."""
     kind: str
+    """One of ``KINDS`` (see the module doc)."""
     frame: str = ""
+    """Site name the task acts on (``orientation``, ``position``, ``contact``); empty otherwise."""
     joints: tuple[str, ...] = ()
+    """Joint names (``joints`` tasks), one row each, in this order."""
     kp: tuple[float, ...] = (0.0,)
+    """Default proportional gain(s): one number for every row, or one per row (1/s^2)."""
     kd: tuple[float, ...] = (0.0,)
+    """Default derivative gain(s): one number for every row, or one per row (1/s)."""
 
     def __post_init__(self):
         if self.kind not in KINDS:
@@ -85,15 +91,22 @@ class TaskReference:
     feed-forward acceleration, and a weight in [0, 1] scaling the task's rows."""
 
     pos: jax.Array
+    """Desired position: (3,) m for positions and the CoM, (4,) quaternion ``w, x, y, z`` for
+    orientations, (3,) momentum (kg m^2/s) for the CAM, (joints,) rad for joints."""
     vel: jax.Array
+    """Desired velocity in the task's row space (m/s, rad/s; the CAM task uses none)."""
     acc: jax.Array
+    """Feed-forward acceleration added to the PD command (m/s^2, rad/s^2)."""
     weight: jax.Array
+    """() in [0, 1]: scales the task's rows (0: off, without changing any shape)."""
 
 
 @struct.dataclass
 class TaskTerms:
     jacobian: jax.Array
+    """(rows, nv) the task Jacobian, rows scaled by the reference's weight."""
     jdot_qdot: jax.Array
+    """(rows,) ``Jdot qd``, scaled alike."""
     desired: jax.Array
     """Desired task acceleration ``xdd^d`` (PD + feed-forward)."""
     error: jax.Array
@@ -105,20 +118,31 @@ class RobotSnapshot:
     """Everything the tasks and WBLC need about one state, computed once per tick."""
 
     data: mjx.Data
+    """MJX data of the state after kinematics, inertias and velocities
+    (:func:`~jaxloco.dynamics.jacobians.smooth`)."""
     mass_matrix: jax.Array
+    """(nv, nv) joint-space mass matrix ``A``."""
     coriolis: jax.Array
+    """(nv,) Coriolis and centrifugal forces ``b`` (gravity apart)."""
     gravity: jax.Array
+    """(nv,) generalized gravity force ``g``."""
     motion: jac.BodyMotion
     """Every body's twist and ``Jdot qd`` (:func:`~jaxloco.dynamics.jacobians.body_motion`)."""
     centroidal_matrix: jax.Array
+    """(6, nv) centroidal momentum matrix ``J_cm``: angular rows (about the CoM) first, then
+    linear."""
     centroidal_bias: jax.Array
+    """(6,) ``Jdot_cm qd`` (Eq. 31), the same row order."""
     mass_cholesky: jax.Array
     """(nv, nv) lower-triangular ``L`` with ``L L' = mass_matrix``."""
     mass_cholesky_inverse: jax.Array
     """(nv, nv) ``L^-1``: every solve with ``A`` or ``L`` in a tick is a product with it."""
     com: jax.Array
+    """(3,) whole-body centre of mass, world frame (m)."""
     com_vel: jax.Array
+    """(3,) its velocity (m/s)."""
     total_mass: jax.Array
+    """() the robot's mass (kg)."""
 
 
 def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
@@ -155,9 +179,13 @@ class TaskIndex:
     """Static model indices of one task."""
 
     site: int = -1
+    """Site id of the task's frame (-1: none)."""
     body: int = -1
+    """Id of that site's body (-1: none)."""
     qpos: tuple[int, ...] = ()
+    """``qpos`` addresses of a ``joints`` task's joints."""
     dof: tuple[int, ...] = ()
+    """Dof addresses of the same joints."""
     site_quat: tuple[float, ...] | None = None
     """The site's rotation in its body (w, x, y, z); None where the site is body-aligned."""
 

@@ -66,7 +66,9 @@ class FootSpec:
     """A foot: the site of its contact frame and the sites of its contact points."""
 
     frame: str
+    """Site of the foot's contact frame (its contact task's frame)."""
     points: tuple[str, ...]
+    """Sites of the foot's contact points, where the force QP's forces act."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -79,11 +81,17 @@ class WBLCConfig:
     """
 
     tasks: tuple[TaskSpec, ...]
+    """Every task the hierarchy or the force QP may use."""
     hierarchy: tuple[str, ...]
+    """Priority levels, highest first (see the class doc)."""
     feet: tuple[FootSpec, ...]
+    """The feet, each with its contact points."""
     com_task: str = "com"
+    """The task whose command is the force QP's hard linear part."""
     cam_task: str = "cam"
+    """The task whose command the force QP's achieved CAM rate sets (Eq. 15)."""
     force_qp: force_qp.ForceQPParams = force_qp.ForceQPParams()
+    """The reaction-force QP's weights, bounds and solver settings."""
     com_acc_limit: float = float("inf")
     """Bound on the horizontal norm of the CoM task's commanded acceleration (m/s^2).
     The CoM's linear behaviour is a hard equality of the force QP, so a command beyond
@@ -217,6 +225,7 @@ class WBLCOutput:
     torques: jax.Array
     """(nu,) actuator torques, actuator order."""
     diagnostics: WBLCDiagnostics
+    """What each stage did and left unmet."""
     qp_state: force_qp.ForceQPState
     """Pass back as ``previous`` next tick (warm start)."""
 
@@ -372,6 +381,7 @@ class ForceStage:
     """What the force QP gives the rest of the tick (stage 3)."""
 
     solution: force_qp.ForceQPSolution
+    """The force QP's forces and residuals."""
     cam_shift: jax.Array
     """(4,) ``[1, W_ang F_r - cam_rate]``: the weights of the hierarchy's command columns
     (the tasks' commands, then unit CAM commands) that give Eq. 15's CAM command."""

@@ -53,22 +53,29 @@ class ActorCriticConfig:
     """Hyper-parameters of Algorithm 1 (defaults: the paper's authors') and of batching."""
 
     gamma: float = 0.9
+    """Discount factor of the return (in [0, 1])."""
     alpha: float = 3e-5
     """Actor (policy) step size."""
     beta: float = 3e-5
     """Critic (value) step size."""
     lambda_theta: float = 0.88
+    """Eligibility-trace decay of the actor (in [0, 1])."""
     lambda_w: float = 0.88
+    """Eligibility-trace decay of the critic (in [0, 1])."""
     init_scale: float = 0.01
     """Initial weights are init_scale * U(0, 1)."""
     mean_bias: tuple[float, float, float] = (0.3, 0.2, 0.0)
+    """Bias of the policy mean per action ``(p_x, xd_apex_next, yd_apex_next)`` (m, m/s, m/s)."""
     initial_spread: float = 0.0
     """If > 0, start every policy spread at this value (log-spread weights 0, bias
     log(initial_spread)) and every mean at mean_bias (mean weights 0), instead of the
     paper's exp(0.01 U(0,1) . phi) ~ 1.1, which makes the first actions nearly uniform."""
     episodes_per_iteration: int = 1024
+    """Episodes run side by side (vmapped) per update."""
     max_episode_steps: int = 20
+    """Steps after which an episode is cut (and bootstrapped)."""
     max_iterations: int = 300
+    """Updates at most (0: none, e.g. refinement from the initial weights)."""
     spread_target: float = 0.07
     """Stop when the mean spread of every action over the visited states is below this."""
     optimizer: str = "sgd"
@@ -95,6 +102,7 @@ class ActorCriticConfig:
     """With normalize_advantage: divide by max(std, this floor), so that once the TD errors
     shrink to noise they are not amplified back to unit size."""
     seed: int = 0
+    """Seed of the initial weights and of the episodes' draws."""
 
     def __post_init__(self):
         v.check_fields(
@@ -119,14 +127,23 @@ class Rollout:
     """What one batch of episodes leaves for the update; leading axes (steps, episodes)."""
 
     features: rbf.LocalFeatures
+    """The RBF features of each visited state."""
     state: jax.Array
+    """(steps, episodes, 3) apex states."""
     action: jax.Array
+    """(steps, episodes, 3) actions taken."""
     value: jax.Array
+    """(steps, episodes) the critic's ``v(state)``."""
     d_mean: jax.Array
+    """(steps, episodes, 3) d log pi / d mean at the action taken."""
     d_log_spread: jax.Array
+    """(steps, episodes, 3) d log pi / d log-spread at the action taken."""
     log_spread: jax.Array
+    """(steps, episodes, 3) the policy's log-spread at the state."""
     reward: jax.Array
+    """(steps, episodes) the step's reward (Eq. 3)."""
     terminal: jax.Array
+    """(steps, episodes) bool, the step ended the episode (Eq. 4)."""
     active: jax.Array
     """True where the episode is still running at this step (the step counts)."""
     final_state: jax.Array
@@ -138,12 +155,15 @@ class Rollout:
 @struct.dataclass
 class IterationStats:
     mean_return: jax.Array
+    """() mean discounted return of the batch's episodes."""
     survival: jax.Array
     """Fraction of episodes still alive after max_episode_steps."""
     mean_length: jax.Array
+    """() mean episode length (steps)."""
     spread: jax.Array
     """(3,) mean policy spread over the visited states."""
     mean_abs_td: jax.Array
+    """() mean absolute TD error over the steps that counted."""
 
 
 def rollout(
@@ -340,8 +360,11 @@ def iteration_stats(ro: Rollout, delta) -> IterationStats:
 @struct.dataclass
 class TrainState:
     params: pol.ActorCriticParams
+    """The actor's and critic's weights."""
     opt_state: optax.OptState
+    """The optimizer's state (optax)."""
     iteration: jax.Array
+    """() int, updates done."""
 
 
 def init_train_state(

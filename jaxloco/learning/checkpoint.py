@@ -138,8 +138,11 @@ class LearnedPlanner:
     """
 
     params: pol.ActorCriticParams
+    """The actor's and critic's weights (leaves)."""
     grid: rbf.RBFGrid = struct.field(pytree_node=False)
+    """The RBF grid the weights are laid on (static)."""
     psp: PSPParams = struct.field(pytree_node=False)
+    """The planner's parameters: its LIPM, action box and reward (static)."""
 
     def policy(self, state):
         """The deterministic policy for one apex state ``(3,) -> (3,)`` (for plan_steps)."""

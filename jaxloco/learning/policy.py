@@ -30,7 +30,10 @@ class ActorCriticParams:
     """Learned weights: the padded RBF table ``(*table_shape, 7)`` and the bias ``(7,)``."""
 
     table: jax.Array
+    """``(*table_shape, 7)`` RBF weights: the policy's 3 means and 3 log-spreads and the value, per
+    centre (padding cells zero)."""
     bias: jax.Array
+    """(7,) the same channels' biases."""
 
 
 def init_params(key, grid: rbf.RBFGrid, mean_bias=(0.3, 0.2, 0.0), init_scale=0.01, dtype=None):

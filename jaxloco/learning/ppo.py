@@ -42,28 +42,40 @@ class PPOConfig:
     num_timesteps: int = 4_000_000
     """Environment steps (walking steps planned) over the whole run."""
     num_envs: int = 1024
+    """Environments run side by side."""
     episode_length: int = 50
     """Steps per episode (the paper's 50)."""
     unroll_length: int = 10
+    """Steps per environment between updates."""
     batch_size: int = 512
+    """Unrolls per minibatch."""
     num_minibatches: int = 8
+    """Minibatches per update."""
     num_updates_per_batch: int = 4
+    """Passes over each batch."""
     learning_rate: float = 1e-3
+    """Adam's step size."""
     entropy_cost: float = 1e-3
+    """Weight of the policy's entropy bonus."""
     discounting: float = 0.9
     """The paper's gamma."""
     reward_scaling: float = 1.0
+    """Factor on every reward before the update."""
     policy_hidden: tuple[int, ...] = (64, 64)
+    """Hidden layer widths of the policy network."""
     value_hidden: tuple[int, ...] = (64, 64)
+    """Hidden layer widths of the value network."""
     num_evals: int = 11
     """Evaluations (Brax's, and the survival basin) over the run, the first before training."""
     seed: int = 0
+    """Seed of the networks' initial weights and of training."""
     pushed_fraction: float = 0.0
     """Share of episodes starting from pushed nominal states, as Algorithm 1 draws them
     (:class:`~.starts.StartStates`); 0: all from the box of Eq. 1."""
     basin_states: int = 2048
     """Box states of the survival-basin evaluation (the training evaluator's draw size)."""
     basin_steps: int = 50
+    """Steps a basin start must survive to count."""
     basin_seed: int = 12345
     """The fixed draw, the same as :class:`~.training.EvalConfig`'s by default."""
 
@@ -122,8 +134,11 @@ class PPOParams:
     """The three parameter trees Brax's PPO returns."""
 
     normalizer: running_statistics.RunningStatisticsState
+    """Running mean and spread of the observations (Brax's normalizer)."""
     policy: dict
+    """The policy network's weights (a flax parameter tree)."""
     value: dict
+    """The value network's weights (a flax parameter tree)."""
 
     @classmethod
     def of(cls, params) -> PPOParams:
@@ -149,8 +164,11 @@ class PPOPlanner:
     value. A pytree (weights are leaves), so it can be passed into ``jit``-ed functions."""
 
     params: PPOParams
+    """The trained weights (leaves)."""
     config: PPOConfig = struct.field(pytree_node=False)
+    """The config it was trained with: its networks' shapes (static)."""
     psp: PSPParams = struct.field(pytree_node=False)
+    """The planner's parameters: its action box (static)."""
 
     def policy(self, state):
         """The deterministic policy for one apex state ``(3,) -> (3,)`` (for plan_steps)."""
@@ -182,6 +200,7 @@ class PPOResult:
     planner: PPOPlanner
     """The evaluated policy with the best survival basin (the final one if it is best)."""
     best_basin: float
+    """Survival basin of ``planner`` (share of box starts that survive ``basin_steps``)."""
     history: list[dict]
     """One row per evaluation: ``env_steps``, ``wall_s`` (since the start, compile
     included), ``basin``, and Brax's ``eval/episode_reward``."""

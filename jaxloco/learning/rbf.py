@@ -37,8 +37,11 @@ class RBFGrid:
     low: tuple[float, float, float] = (-0.14, 0.03, -0.55)
     """Lowest centre on each axis (y, xd, yd)."""
     counts: tuple[int, int, int] = (18, 30, 56)
+    """Centres on each axis (y, xd, yd)."""
     spacing: float = 0.02
+    """Distance between neighbouring centres on every axis (m, m/s)."""
     sigma: float = 0.02
+    """The Gaussians' width (same units)."""
     radius: int = 3
     """Cells each side of the nearest centre that a state's features cover."""
 
@@ -91,7 +94,9 @@ class LocalFeatures:
     """
 
     corner: jax.Array
+    """(3,) int, the window's first cell in padded-table coordinates."""
     axis_weights: jax.Array
+    """(3, 2r + 1) per-axis Gaussian factors (zero on padding cells)."""
 
 
 def local_features(grid: RBFGrid, state) -> LocalFeatures:

@@ -64,6 +64,7 @@ class RefineConfig:
     learn). 4 steps reach the same basin at twice the cost per step; longer horizons gained
     nothing (docs/learning.md)."""
     learning_rate: float = 1e-3
+    """Adam's step size."""
     adam_eps: float = 1e-8
     """Adam's denominator floor."""
     clip_norm: float = 0.0
@@ -74,7 +75,9 @@ class RefineConfig:
     sharpness: float = 100.0
     """Slope of the soft safety (1/units of the margins)."""
     reward_weight: float = 0.1
+    """Weight of the clipped reward next to the soft safety in the objective (module doc)."""
     discount: float = 0.9
+    """Discount of later steps in the objective."""
     infeasible_log_safety: float = -10.0
     """Log soft safety of a step whose equations have no solution."""
     average: float = 0.9
@@ -90,6 +93,7 @@ class RefineConfig:
     """Steps the starting policy must survive from a start state for the anchor to hold
     there."""
     seed: int = 0
+    """Seed of the start-state draws."""
 
     def __post_init__(self):
         v.check_fields(
@@ -208,10 +212,13 @@ class RefineResult:
     start: dict | None
     """The starting weights' evaluation."""
     history: list[dict]
+    """One row per refinement step (objective, evaluations)."""
     compile_seconds: float
+    """Wall time of the first step, compile included (s)."""
     train_seconds: float
     """Wall time of the steps after the first (compile excluded), evaluation excluded."""
     eval_seconds: float
+    """Wall time of the evaluations (s)."""
 
 
 def refine(

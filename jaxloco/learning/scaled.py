@@ -30,6 +30,7 @@ class ScaledPlanner:
     planner: Planner
     """The planner at the reference size (``LearnedPlanner``, ``FallbackPlanner``...)."""
     scale: FroudeScale = struct.field(pytree_node=False)
+    """The robot's size relative to the reference's (static)."""
 
     @property
     def psp(self) -> PSPParams:

@@ -22,15 +22,19 @@ class StartStates:
     """How start states are drawn."""
 
     box_low: tuple[float, float, float] = (-0.14, 0.03, -0.55)
+    """Lower corner of the apex state box of Eq. 1 (y, xd, yd; m, m/s, m/s)."""
     box_high: tuple[float, float, float] = (0.20, 0.61, 0.55)
     """The apex state box of Eq. 1 (y, xd, yd)."""
     pushed_fraction: float = 0.5
     """Share of pushed nominal states; the rest are uniform over the box."""
     mass: float = 136.0
+    """Robot mass (kg) that turns a push's impulse into a velocity change."""
     impulses: tuple[float, ...] = (10.0, 30.0, 50.0)
     """Push impulses (N s)."""
     push_duration: float = 0.1
+    """Duration of the pushes (s)."""
     angle_min_deg: float = -90.0
+    """Smallest push direction (deg from the walking direction)."""
     angle_max_deg: float = 90.0
     """Push directions, from the walking direction (0) towards the swing side (+90)."""
     noise: float = 0.04

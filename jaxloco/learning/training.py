@@ -78,7 +78,9 @@ class EvalConfig:
     every: int = 25
     """Evaluate every this many iterations (0: never; the final policy is then kept)."""
     num_states: int = 2048
+    """Box states the survival basin is measured on."""
     num_steps: int = 50
+    """Steps a state must survive under the mean policy to count."""
     seed: int = 12345
     """Fixed draw of box states, the same at every evaluation (and unlike the training seed)."""
     steering_segments: tuple[tuple[int, float], ...] = ((12, 18.8), (5, 0.0), (12, -18.8))
@@ -109,10 +111,15 @@ class TrainConfig:
     """Everything a training run depends on (saved with every checkpoint)."""
 
     actor_critic: ActorCriticConfig = WARM_START
+    """Algorithm 1's hyper-parameters."""
     grid: rbf.RBFGrid = rbf.RBFGrid()
+    """The RBF grid of the actor's and critic's features."""
     starts: StartStates = StartStates()
+    """Where episodes start: the apex-state box of Eq. 1 and pushed states."""
     planner: PSPParams = PSPParams()
+    """The PSP the policy plans with (its LIPM height, action box, reward)."""
     evaluation: EvalConfig = EvalConfig()
+    """The periodic survival-basin evaluation that picks the kept weights."""
     turns: EpisodeTurns = EpisodeTurns()
     """Straight episodes, as the paper trains; :data:`STEERING` adds turning ones."""
     refine: RefineConfig = RefineConfig()
@@ -135,10 +142,12 @@ class TrainResult:
     history: list[dict]
     """One row per iteration: Algorithm 1's, then refinement's (``stage = "refine"``)."""
     compile_seconds: float
+    """Wall time of the first iteration, compile included (s)."""
     train_seconds: float
     """Algorithm 1: wall time of the iterations after the first (compile excluded),
     evaluation excluded."""
     eval_seconds: float
+    """Wall time of the evaluations (s)."""
     stop_reason: str
     """Why Algorithm 1 stopped."""
     actor_critic_basin: float | None = None

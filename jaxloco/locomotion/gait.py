@@ -89,6 +89,7 @@ class GaitParams:
     swing_height: float = 0.1
     """Swing-foot height above the landing point at mid-swing (m; authors: 0.1)."""
     min_step_duration: float = 0.25
+    """Shortest step, touch-down to touch-down (s)."""
     max_step_duration: float = 2.0
     """Clip of a step's duration, touch-down to touch-down (s)."""
     fallback_duration: float = 0.45
@@ -115,6 +116,7 @@ class GaitParams:
     planned to land after the LIPM's CoM passes this bound lands then, on the capture step
     (docs/locomotion.md)."""
     step_x_range: tuple[float, float] = (-0.45, 0.65)
+    """Sagittal limits of a footstep in the stance frame (m): behind, ahead."""
     step_y_range: tuple[float, float] = (0.12, 0.6)
     """Kinematic limits of a footstep in the stance frame (m): every planned or fallback
     step is clipped to them (``y`` > 0 keeps the legs from crossing)."""
@@ -132,6 +134,7 @@ class GaitParams:
     """While a touch-down waits, the swing foot's height reference is this far below its
     target (m), so that the foot goes down instead of hovering over it."""
     replan: bool = True
+    """Replan the step when Eq. 33's error passes ``replan_threshold`` (Section IV-C)."""
     replan_threshold: float = 0.05
     """Eq. 33's error norm that triggers replanning. Per robot it is data
     (:class:`GaitOverrides`), like ``replan_gamma``; as a trigger its
@@ -311,11 +314,13 @@ class GaitOverrides:
 @struct.dataclass
 class GaitState:
     phase: jax.Array
+    """() int32, ``START`` (double support before the first step) or ``WALK``."""
     step: jax.Array
     """Steps begun so far (the first lift-off begins step 1)."""
     stance: jax.Array
     """Stance foot: 0 left, 1 right (in START: the first stance foot)."""
     step_start: jax.Array
+    """() time the current step began (s)."""
     step_duration: jax.Array
     """Planned time from the step's start to its touch-down."""
     stance_weight0: jax.Array
@@ -323,15 +328,22 @@ class GaitState:
     stance_pos: jax.Array
     """(3,) stance foot's contact-frame position (world)."""
     heading: jax.Array
+    """() heading of the current step (rad, about world z)."""
     lateral_sign: jax.Array
+    """() +1 or -1: the world-frame sign of local +y, from the stance foot towards the swing
+    side."""
     next_heading: jax.Array
+    """() heading the next step turns to (rad)."""
     foot_yaw: jax.Array
     """(2,) yaw targets of the feet (left, right)."""
     body_yaw0: jax.Array
+    """() pelvis and torso yaw at the step's start (rad)."""
     body_yaw1: jax.Array
     """Pelvis/torso yaw interpolates from yaw0 to yaw1 over the step."""
     com_t0: jax.Array
+    """() time of the CoM reference's initial state (s)."""
     com_pos0: jax.Array
+    """(2,) horizontal CoM position of the reference's initial state (m)."""
     com_vel0: jax.Array
     """CoM reference: LIPM about the stance foot from (pos0, vel0) at com_t0 (horizontal)."""
     start_com: jax.Array
@@ -339,17 +351,26 @@ class GaitState:
     com_height: jax.Array
     """Reference CoM height above the stance foot (m)."""
     swing: SwingSpline
+    """The swing foot's spline to its target."""
     swing_yaw0: jax.Array
+    """() the swing foot's yaw at lift-off (rad)."""
     turns: jax.Array
     """(N,) heading change per step (rad); after the last, straight on."""
     error_time: jax.Array
+    """() how long Eq. 33's error has been above the threshold (s): replanning waits
+    ``replan_delay``."""
     overrides: GaitOverrides
     """This robot's replanning switch, speed cap and replan numbers."""
     replans: jax.Array
+    """() int32, replans so far."""
     failed_plans: jax.Array
+    """() int32, plans so far with no PSP solution (a fallback capture step instead)."""
     last_apex: jax.Array
+    """(3,) the last plan's apex state ``(y, xd, yd)`` in the stance frame (m, m/s, m/s)."""
     last_action: jax.Array
+    """(3,) the last plan's action ``(p_x, xd_apex_next, yd_apex_next)`` (m, m/s, m/s)."""
     last_reason: jax.Array
+    """() int32, the last plan's :class:`~jaxloco.planner.psp.Reason` bits."""
     target: jax.Array
     """(3,) footstep the swing foot is heading to (world)."""
 

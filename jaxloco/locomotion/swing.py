@@ -36,8 +36,11 @@ class Motion(NamedTuple):
     angular velocity and acceleration ``(3,)`` (rad/s, rad/s^2); a planar one scalars."""
 
     pos: jax.Array
+    """Position (m), or a (4,) quaternion, or a scalar."""
     vel: jax.Array
+    """Velocity (m/s or rad/s)."""
     acc: jax.Array
+    """Acceleration (m/s^2 or rad/s^2)."""
 
 
 KNOTS = np.array([0, 0, 0, 0, 0.25, 0.5, 0.75, 1, 1, 1, 1], dtype=np.float64)
@@ -104,10 +107,15 @@ class SwingSpline:
     acceleration) and the landing point ``target`` (3,)."""
 
     height_points: jax.Array
+    """(7,) the height's B-spline control points (m above the landing point)."""
     ground_start: jax.Array
+    """(3, 2) the ground path's start: position, velocity, acceleration (m, m/s, m/s^2)."""
     target: jax.Array
+    """(3,) the landing point (m, world)."""
     t0: jax.Array
+    """() the swing's start time (s)."""
     duration: jax.Array
+    """() the swing's duration (s)."""
 
     def evaluate(self, t) -> Motion:
         """Position, velocity and acceleration (3,) each at time ``t`` (held after the end)."""

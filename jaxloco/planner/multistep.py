@@ -209,6 +209,7 @@ class ComTrajectory:
     """
 
     t: jax.Array
+    """Time of each sample from the plan's start (s)."""
     position: jax.Array
     """World CoM position (x, y)."""
     velocity: jax.Array
@@ -218,6 +219,7 @@ class ComTrajectory:
     stance: jax.Array
     """Index of the stance foot (k or k + 1)."""
     alive: jax.Array
+    """True while the plan's steps so far are safe."""
 
 
 def sample_com_trajectory(

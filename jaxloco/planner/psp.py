@@ -65,8 +65,12 @@ class PSPParams:
     p_y_nominal: float = 0.3
     """Nominal lateral step (m): the reward's target (Eq. 3)."""
     reward_weight_xd: float = 1.0
+    """Weight of the apex-velocity error ``(xd_apex_nominal - xd_apex_next)^2`` in the reward (Eq.
+    3)."""
     reward_weight_p_y: float = 15.0
+    """Weight of the lateral-step error ``(p_y_nominal - p_y)^2`` (Eq. 3)."""
     reward_weight_yd: float = 1.0
+    """Weight of the next apex's lateral velocity squared (Eq. 3)."""
     terminal_reward: float = -5.0
     """Reward of a transition that ends in a terminal condition."""
     t_switch_min: float = 0.12
@@ -74,16 +78,23 @@ class PSPParams:
     t_apex_min: float = 0.12
     """Shortest time from the switch to the next apex that is safe (s, Eq. 4)."""
     p_y_min: float = 0.1
+    """Least safe lateral step (m, Eq. 4), exclusive."""
     p_y_max: float = 0.5
     """Safe lateral step range (m, Eq. 4), exclusive."""
     stride_min: float = 0.20
+    """Shortest safe stride ``sqrt(p_x^2 + p_y^2)`` (m), inclusive."""
     stride_max: float = 0.95
     """Safe stride length ``sqrt(p_x^2 + p_y^2)`` range (m), inclusive."""
     p_x_min: float = 0.1
+    """Action box: the shortest sagittal step ``p_x`` (m)."""
     p_x_max: float = 0.5
+    """Action box: the longest sagittal step ``p_x`` (m)."""
     xd_apex_next_min: float = 0.03
+    """Action box: the slowest next apex velocity (m/s)."""
     xd_apex_next_max: float = 0.37
+    """Action box: the fastest next apex velocity (m/s)."""
     yd_apex_next_min: float = -0.25
+    """Action box: the least next apex lateral velocity (m/s)."""
     yd_apex_next_max: float = 0.25
     """The action box (Eq. 2). ``plan_step`` accepts any action; policies sample and
     search inside this box (the paper bounds the sagittal step through it, not Eq. 4)."""
@@ -197,10 +208,15 @@ class StepValidity:
     """Per-field validity of a :class:`StepPlan`: False where the field is a placeholder."""
 
     x_switch: jax.Array
+    """() bool, ``x_switch`` (and the sagittal switch state) is a real solution."""
     t_switch: jax.Array
+    """() bool, ``t_switch`` is a real solution."""
     t_apex: jax.Array
+    """() bool, ``t_apex`` is a real solution."""
     p_y: jax.Array
+    """() bool, ``p_y`` (and the lateral switch state) is a real solution (Eq. 45's ``D != 0``)."""
     next_state: jax.Array
+    """() bool, ``next_state`` is a real apex state."""
 
 
 @struct.dataclass
@@ -212,20 +228,31 @@ class StepPlan:
     """
 
     x_switch: jax.Array
+    """Sagittal CoM position at the switch, from the current stance foot (m)."""
     xd_switch: jax.Array
+    """Sagittal CoM velocity at the switch (m/s)."""
     y_switch: jax.Array
+    """Lateral CoM position at the switch, from the current stance foot (m)."""
     yd_switch: jax.Array
+    """Lateral CoM velocity at the switch (m/s)."""
     t_switch: jax.Array
+    """Time from the planning state to the switch (s)."""
     t_apex: jax.Array
+    """Time from the switch to the next apex (s)."""
     p_x: jax.Array
+    """Sagittal position of the next stance foot, from the current one (m)."""
     p_y: jax.Array
+    """Lateral position of the next stance foot, from the current one (m)."""
     next_state: jax.Array
     """Apex state in the next stance foot's (mirrored) frame, shape (..., 3)."""
     reward: jax.Array
+    """The transition's reward (Eq. 3; ``terminal_reward`` when terminal)."""
     terminal: jax.Array
+    """() bool, the step breaks a safety condition (Eq. 4) or has no solution."""
     reason: jax.Array
     """int32 bitmask of :class:`Reason`; 0 for a safe step."""
     valid: StepValidity
+    """Which fields are real solutions rather than placeholders."""
 
     @property
     def stride(self) -> jax.Array:

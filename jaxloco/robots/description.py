@@ -40,7 +40,9 @@ class PD:
     """Task gains: one number for every row, or one per row (``()``: none)."""
 
     kp: tuple[float, ...] = (0.0,)
+    """Proportional gain(s) (1/s^2; the CAM task's is a rate, 1/s)."""
     kd: tuple[float, ...] = (0.0,)
+    """Derivative gain(s) (1/s)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -52,13 +54,21 @@ class TaskGains:
     none)."""
 
     contact: PD = PD(kd=(10.0,))
+    """The feet in contact (damping only: they are held still)."""
     com: PD = PD((50.0, 50.0, 220.0), (15.0, 15.0, 10.0))
+    """The centre of mass, rows (x, y, z)."""
     cam: PD = PD((5.0,))
+    """The centroidal angular momentum."""
     base_orientation: PD = PD((100.0,), (20.0,))
+    """The pelvis's orientation."""
     torso_orientation: PD = PD((100.0,), (20.0,))
+    """The torso's orientation."""
     foot_orientation: PD = PD((200.0,), (30.0,))
+    """A swing foot's orientation."""
     foot_position: PD = PD((400.0,), (40.0,))
+    """A swing foot's position."""
     posture: PD = PD((100.0,), (20.0,))
+    """The joint posture tasks (upper body, arms, partial and full posture)."""
 
     def scaled(self, scale: FroudeScale) -> TaskGains:
         """These gains for a robot ``scale`` times the size they were chosen for (Froude
@@ -90,14 +100,20 @@ class RobotDescription:
     posture task); the groups below are subsets of them."""
 
     name: str
+    """The robot's name: ``robot=`` in the experiments."""
     model: str | PackagedModel
     """A model in ``assets/`` by name, an MJCF path, or a model of the installed model
     package with the edits the controller needs (:mod:`jaxloco.robots.model_source`)."""
     feet: tuple[Foot, Foot]
+    """(left, right) feet: their contact frames and contact points."""
     base_frame: str
+    """Site of the floating base (pelvis), level when standing upright."""
     base_body: str
+    """The body pushes act on and whose height tells a fall."""
     torso_frame: str
+    """Site of the upper body, level when standing upright."""
     joints: tuple[str, ...]
+    """Every actuated joint: the full posture task."""
     upper_body_joints: tuple[str, ...]
     """Torso and neck: the walking hierarchy's upper-body posture task."""
     arm_joints: tuple[str, ...]
@@ -107,6 +123,7 @@ class RobotDescription:
     keyframe: str = "walk"
     """The keyframe the robot starts in, and whose joint angles the posture tasks hold."""
     gains: TaskGains = TaskGains()
+    """Default task gains (Valkyrie's; scaled to the robot's size by its presets)."""
     fall_height: float = 0.7
     """Height (m) of ``base_body`` below which the robot has fallen."""
     torque_limit: float | str = "model"

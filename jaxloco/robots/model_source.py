@@ -41,9 +41,13 @@ class AddedSite:
     tasks hold: upright frames), else aligned with the body."""
 
     name: str
+    """Name of the new site."""
     body: str
+    """Body it is added to."""
     pos: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Position in the body's frame (m)."""
     level: bool = True
+    """Aligned with the world in the keyframe (else with the body)."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,9 +59,13 @@ class FootSites:
     keyframe: the foot's contact frame (centre of pressure at rest)."""
 
     body: str
+    """The foot's body (the sole's link)."""
     frame: str
+    """Name of the contact-frame site to add at the points' centroid."""
     points: tuple[str, ...]
+    """Names of the contact-point sites (existing or added)."""
     from_spheres: bool = False
+    """Add the points at the bottoms of the body's sphere colliders."""
     positions: tuple[tuple[float, float, float], ...] = ()
     """Where to add the ``points`` (m, body frame) on a model that has neither contact-point
     sites nor sphere colliders; empty: existing sites or spheres."""
@@ -75,8 +83,11 @@ class StandingKeyframe:
     (z = 0)."""
 
     name: str
+    """Name of the new keyframe."""
     base: str
+    """The model's keyframe it starts from."""
     joints: tuple[tuple[str, float], ...] = ()
+    """(joint name, angle in rad) pairs changed from ``base``."""
 
 
 @dataclasses.dataclass(frozen=True)
@@ -86,12 +97,17 @@ class PackagedModel:
     scene file in it (with the floor)."""
 
     folder: str
+    """The robot's folder in the package's Menagerie copy."""
     file: str = "scene.xml"
+    """The scene file in that folder (the robot with a floor)."""
     feet: tuple[FootSites, ...] = ()
+    """Each foot's contact sites to find or add."""
     sites: tuple[AddedSite, ...] = ()
+    """Other sites to add (base and torso frames)."""
     keyframe: str = ""
     """The keyframe the ``level`` sites are level in (the description's keyframe)."""
     standing: StandingKeyframe | None = None
+    """A standing keyframe to build (None: use the model's)."""
     timestep: float | None = None
     """Physics timestep (s); None: as shipped."""
 

@@ -47,8 +47,12 @@ class PhysicsParams:
     iterations, Euler damping and the actuators' torque limit."""
 
     iterations: int = 2
+    """Constraint-solver iterations of the simulation (MuJoCo's ``opt.iterations``)."""
     ls_iterations: int = 4
+    """Its line-search iterations (``opt.ls_iterations``)."""
     eulerdamp: bool = False
+    """MuJoCo's implicit joint damping in the Euler integrator; off (``mjDSBL_EULERDAMP`` set) as
+    the paper's authors simulated."""
     torque_limit: Union[float, str, None] = 500.0  # noqa: UP007 (OmegaConf needs typing.Union)
     """Every actuator clips at +-this (N m). The default is what the paper's authors
     simulated (their code bounded every joint at 500 N m; the paper names no limit).

@@ -30,10 +30,14 @@ class Push:
     magnitude: float = 520.0
     """Force (N)."""
     direction_deg: float = 0.0
+    """Horizontal direction the force points (deg, world frame): 0 towards +x (from behind at the
+    start), 90 towards +y."""
     start: float = 3.0
     """Time the push begins (s)."""
     duration: float = 0.1
+    """How long the force acts (s)."""
     body: str = "pelvis"
+    """The body it acts on, at its centre of mass."""
 
     def __post_init__(self):
         finite = all(math.isfinite(getattr(self, n)) for n in ("magnitude", "start", "duration"))

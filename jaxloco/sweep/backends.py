@@ -39,6 +39,7 @@ class ChunkStarts:
     """Start states of a chunk's runs (leading axis: runs)."""
 
     times: np.ndarray
+    """(runs,) simulated time of each run's start (s)."""
     physics: np.ndarray
     """``mjSTATE_INTEGRATION`` rows."""
     controller: WalkingState
@@ -56,8 +57,11 @@ class TreeLayout:
     the outcome's integer counters and boolean flags keep their own here."""
 
     treedef: jax.tree_util.PyTreeDef
+    """The pytree's structure."""
     shapes: tuple[tuple[int, ...], ...]
+    """Each leaf's shape, in leaf order."""
     dtypes: tuple[str, ...]
+    """Each leaf's dtype name, in leaf order."""
 
     @classmethod
     def of(cls, tree) -> TreeLayout:

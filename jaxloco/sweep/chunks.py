@@ -56,9 +56,11 @@ class ChunkReport:
     """What running one chunk gave (its outcomes are on disk)."""
 
     index: int
+    """The chunk's index in the sweep."""
     pushes: int
     """Pushes in the chunk (without the padding)."""
     recovered: int
+    """Pushes recovered in the chunk."""
     seconds: float
     """Wall time of the chunk (the first one a runner runs includes the compile)."""
     env_steps: int
@@ -72,9 +74,13 @@ class _Sweep:
     """One run directory's push table, as a runner reads it."""
 
     run_dir: str
+    """The run directory."""
     store: SweepStore
+    """Its store of chunk outcomes."""
     table: PushTable
+    """Its push table."""
     chunks: list[np.ndarray]
+    """Row indices of each chunk's pushes."""
 
 
 def load_sweep(job: SweepJob) -> _Sweep:

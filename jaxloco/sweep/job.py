@@ -41,13 +41,16 @@ class SweepJob:
     chunk_size: int = 16
     """Pushes per batched backend call; the last chunk is padded to it."""
     gait: GaitParams = GaitParams()
+    """The walking controller's gait numbers."""
     physics: PhysicsParams = PhysicsParams()
+    """The simulation's settings (solver, torque limits)."""
     wblc: WBLCConfig | None = None
     """The WBLC's configuration; None: the walking preset."""
     robot: str = DEFAULT_ROBOT.name
     """The robot (:data:`jaxloco.robots.ROBOTS`) whose model, keyframe and feet the sweep
     uses."""
     push_body: str = DEFAULT_ROBOT.base_body
+    """The body the pushes act on."""
     push_step: int = 4
     """The step (counted from the first lift-off) during which pushes start."""
     horizon: float = 2.5

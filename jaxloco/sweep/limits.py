@@ -235,9 +235,11 @@ class LimitResult:
     """Per cell (the order of :meth:`LimitSearch.cells`), what the search found."""
 
     search: LimitSearch
+    """The search's settings."""
     cells: list
     """``(direction_deg, phase, duration, replan)`` per cell."""
     brackets: Brackets
+    """Per cell, the final bracket: the largest recovered and the smallest failed impulse (N s)."""
     tested: np.ndarray
     """(rounds, C) impulse tested in each round (N s)."""
     recovered: np.ndarray

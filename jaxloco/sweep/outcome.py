@@ -33,19 +33,27 @@ FIELDS = (
 @struct.dataclass
 class Outcome:
     fell: jax.Array
+    """() bool, the base fell below the fall height within the horizon."""
     fall_time: jax.Array
     """Time (s) of the fall relative to the push's start; inf while standing."""
     step0: jax.Array
+    """() int, steps begun when the push started."""
     step: jax.Array
+    """() int, steps begun at the end (or the fall)."""
     replans0: jax.Array
+    """() int, replans when the push started."""
     replans: jax.Array
+    """() int, replans at the end."""
     failed0: jax.Array
+    """() int, failed plans when the push started."""
     failed: jax.Array
+    """() int, failed plans at the end."""
     max_com_error: jax.Array
     """Eq. 33's error (horizontal CoM state against the planned one), max over the run."""
     max_com_offset: jax.Array
     """Horizontal distance of the CoM from its reference (m), max over the run."""
     peak_torque_norm: jax.Array
+    """() largest norm of the commanded torques over the run (N m)."""
     relaxed_ticks: jax.Array
     """Ticks on which the force QP relaxed the friction cone (mu 0.65 -> 1.75)."""
     over_limit_ticks: jax.Array

@@ -40,12 +40,15 @@ from jaxloco.sweep.store import SweepStore, table_digest
 @dataclasses.dataclass
 class SweepResult:
     table: PushTable
+    """The sweep's pushes, one row each."""
     outcomes: dict
     """Outcome columns (:data:`jaxloco.sweep.outcome.FIELDS`), one entry per push."""
     complete: np.ndarray
     """Rows that have results."""
     manifest: dict
+    """The run directory's manifest: settings, runs, rates."""
     run_dir: Path
+    """The run directory."""
 
 
 def run_sweep(

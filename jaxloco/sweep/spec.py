@@ -66,9 +66,11 @@ class SweepSpec:
     replan: tuple[bool, ...] = (True, False)
     """Eq. 33-34 replanning on / off."""
     seeds: tuple[int, ...] = (0,)
+    """Noise seeds (replicas of each push)."""
     mode: str = "grid"
     """``grid`` or ``random``."""
     num_random: int = 64
+    """Pushes drawn in ``random`` mode."""
     push_step: int = 4
     """The step (counted from the first lift-off) during which pushes start."""
     horizon: float = 2.5
@@ -112,6 +114,7 @@ class PushTable:
     """One row per push; every column a numpy array of the same length."""
 
     columns: dict
+    """Column name -> (pushes,) numpy array."""
 
     def __len__(self) -> int:
         return len(self.columns["direction_deg"])

@@ -36,6 +36,7 @@ class WalkSnapshots:
     """Snapshots of one undisturbed walk, one per requested phase."""
 
     phases: np.ndarray
+    """(P,) the requested phases of step ``push_step``'s single support."""
     times: np.ndarray
     """Simulated time of each snapshot (s)."""
     physics: np.ndarray
@@ -43,6 +44,7 @@ class WalkSnapshots:
     controller: WalkingState
     """Controller states, leading axis P."""
     step_start: float
+    """Start of step ``push_step`` (s)."""
     step_duration: float
     """Start and planned duration of step ``push_step`` (s)."""
 

@@ -52,7 +52,9 @@ class GainSpace:
     e.g. ``"body_ori.kp"``, and ``"gait.replan_gamma"`` / ``"gait.replan_threshold"``."""
 
     tuned: tuple[str, ...] = ("body_ori.kp", "body_ori.kd")
+    """The tuned gains' names."""
     per_row: bool = False
+    """One scale per task row instead of per task and gain (the gait's numbers stay scalar)."""
     max_log_scale: float = 3.0
     """Scales are clipped to ``exp(+-max_log_scale)`` of the hand-set gains (x20 at 3)."""
 

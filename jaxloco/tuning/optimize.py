@@ -56,6 +56,7 @@ class TuneConfig:
     smoothing_pairs: int = 4
     """``smoothed``: antithetic pairs of perturbations per gradient (2x this many losses)."""
     iterations: int = 20
+    """Optimizer iterations at most."""
     learning_rate: float = 0.1
     """Adam's step (in log-gain units: 0.1 is a ~10% change of a gain)."""
     clip_norm: float = 1.0
@@ -65,6 +66,7 @@ class TuneConfig:
     tolerance: float = 0.0
     """Stop when the loss improves by less than this over ``patience`` iterations (0: off)."""
     patience: int = 5
+    """Iterations over which ``tolerance`` is judged."""
     max_line_search: int = 12
     """L-BFGS: most backtracking halvings per iteration."""
 
@@ -99,6 +101,7 @@ class TuneResult:
     params: object
     """The parameters with the lowest loss seen."""
     best_loss: float
+    """The lowest loss seen."""
     history: list
     """One dict per iteration: loss, aux terms, grad_norm, wall_s."""
     stopped: str

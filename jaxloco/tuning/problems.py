@@ -59,16 +59,21 @@ class ShakingLossParams:
     empty: the shaking's own ``frequency_hz`` only. Gains tuned at one frequency overfit
     it."""
     track_weight: float = 1.0
+    """Weight of the body orientation's squared error (rad^2)."""
     effort_weight: float = 0.01
+    """Weight of the squared torque norm in units of ``torque_scale``."""
     torque_scale: float = 300.0
     """Torque scale (N m) of the effort term, which is then O(1) near standing."""
     com_weight: float = 10.0
+    """Weight of the CoM's horizontal drift squared (m^2)."""
     slip_weight: float = 0.0
     """Weight of the feet's creep (m^2 of contact-point displacement, time-averaged). 0 by
     default: at 100 the gains stiffened and the feet crept more on MuJoCo C, at 1000 the
     gains softened until tracking got worse (docs/tuning.md)."""
     fall_weight: float = 10.0
+    """Weight of the fraction of the horizon spent fallen."""
     fall_height: float = 0.7
+    """Base height (m) below which the robot has fallen."""
 
     def __post_init__(self):
         v.check_fields(
@@ -234,6 +239,7 @@ class PushLossParams:
     segment: int = 1
     """Ticks per checkpointed segment (reverse mode only, see :mod:`.rollout`)."""
     risk_weight: float = 10.0
+    """Weight of the soft count of pushes at risk (see the class doc)."""
     risk_threshold: float = 0.02
     """``dcm`` (m^2) at which a push counts as half lost (see above)."""
     risk_temperature: float = 0.5
@@ -241,12 +247,16 @@ class PushLossParams:
     dcm_weight: float = 0.0
     """The mean of ``dcm`` itself (100 with ``dcm_reference="plan"`` is a tested setting)."""
     tilt_weight: float = 10.0
+    """Weight of the body's tilt squared (rad^2)."""
     effort_weight: float = 0.001
     """Small: the effort term is about 6 (mean of 8 pushes of 650 N over 0.25 s, torques
     clipped to the 500 N m limits, ``torque_scale`` 300)."""
     torque_scale: float = 300.0
+    """Torque scale (N m) of the effort term."""
     fall_weight: float = 10.0
+    """Weight of the fraction of the horizon spent fallen."""
     fall_height: float = 0.7
+    """Base height (m) below which the robot has fallen."""
 
     def __post_init__(self):
         v.check_fields(

@@ -39,18 +39,25 @@ class GradientPlannerParams:
     horizon: int = 2
     """Steps optimised jointly (1 or 2); only the first is taken."""
     iterations: int = 40
+    """Adam iterations per starting action."""
     learning_rate: float = 0.02
+    """Adam's step size (action units)."""
     start_grid: tuple[int, int, int] = (3, 3, 3)
     """Starting actions: a grid of this shape over the action box (one Adam run each)."""
     margin: float = 0.02
     """Safety margin inside Eq. 4's bounds (s for the times, m for p_y and the stride)."""
     barrier_weight: float = 50.0
+    """Weight of the softplus barrier on the safety margins."""
     barrier_sharpness: float = 100.0
     """Softplus sharpness (1/units of the margin)."""
     infeasible_penalty: float = 10.0
+    """Penalty of a step whose equations have no solution."""
     discount: float = 0.9
+    """Discount of the second step and the terminal value."""
     value_weight: float = 1.0
+    """Weight of the terminal value: the last apex state's distance from the nominal."""
     value_weights: tuple[float, float, float] = (30.0, 1.0, 1.0)
+    """Per-axis weights ``W`` of that distance (y, xd, yd)."""
 
     def __post_init__(self):
         v.check_fields(
