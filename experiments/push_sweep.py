@@ -83,7 +83,7 @@ class PushSweepConfig(RunConfig):
     )
     """The pushes of ``task=grid``."""
     gait: GaitSchema = field(default_factory=GaitSchema)
-    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`), in the
+    """Walking state machine (:class:`~jaxloco.locomotion.gait_params.GaitParams`), in the
     reference robot's (Valkyrie's) size: scaled to ``robot``'s (Froude scaling)."""
     physics: PhysicsSchema = field(default_factory=robot_physics_schema(PhysicsSchema))
     """Simulation settings; the torque limit and solver iterations default to the robot's

@@ -64,7 +64,7 @@ class WalkSteerConfig(RunConfig):
     robot: str = "valkyrie"
     """A shipped robot (``jaxloco.robots.ROBOTS``): valkyrie, g1 or apollo."""
     gait: GaitSchema = field(default_factory=GaitSchema)
-    """Walking state machine (:class:`~jaxloco.locomotion.gait.GaitParams`), in the
+    """Walking state machine (:class:`~jaxloco.locomotion.gait_params.GaitParams`), in the
     reference robot's (Valkyrie's) size: scaled to ``robot``'s (Froude scaling)."""
     physics: PhysicsSchema = field(default_factory=robot_physics_schema(PhysicsSchema))
     """Simulation settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`); the torque limit

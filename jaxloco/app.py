@@ -32,7 +32,7 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
-from jaxloco.locomotion.gait import GaitParams
+from jaxloco.locomotion.gait_params import GaitParams
 from jaxloco.locomotion.walking import robot_gait
 from jaxloco.robots import RobotDescription, robot_by_name
 from jaxloco.runtime import configure, enable_compilation_cache, quiet_library_logs, watchdog

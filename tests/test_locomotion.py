@@ -18,11 +18,13 @@ from jaxloco.dynamics import se3
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.learning.loading import load_planner
 from jaxloco.locomotion import (
+    GaitOverrides,
     GaitParams,
     WalkingController,
     make_swing,
     make_walking_controller,
     retarget_swing,
+    step_timing,
 )
 from jaxloco.locomotion import gait as gait_lib
 from jaxloco.locomotion.swing import KNOTS, Motion
@@ -212,7 +214,7 @@ def test_replan_threshold_is_per_robot_data():
     t_lift, dt = params.start_duration, 1e-3
     replans = {}
     for threshold in (0.05, 0.2):
-        overrides = gait_lib.GaitOverrides.of(params, replan_threshold=threshold)
+        overrides = GaitOverrides.of(params, replan_threshold=threshold)
         state = gait_lib.init_gait(
             params, psp, jnp.array([0.0, 0.0, 1.06]), feet, overrides=overrides
         )
@@ -322,7 +324,7 @@ def test_step_timing_adaptation_bounds_the_lateral_dcm_at_touchdown():
     w = psp.omega
     for rel, vel in (((0.0, 0.05), (0.3, 0.4)), ((0.0, 0.02), (0.3, -0.5))):
         rel, vel = jnp.asarray(rel), jnp.asarray(vel)
-        t_max = float(gait_lib.dcm_time_limit(params, w, rel, vel))
+        t_max = float(step_timing.dcm_time_limit(params, w, rel, vel))
         sol = solve_ivp(
             lambda _, x: [x[1], w**2 * x[0]], (0, t_max), [rel[1], vel[1]], rtol=1e-11, atol=1e-12
         )
@@ -349,20 +351,24 @@ def test_step_timing_adaptation_bounds_the_com_lead():
     w, lead = psp.omega, params.max_com_lead
     for x0, v0 in ((0.0, 0.8), (-0.1, 0.9), (0.25, -0.5), (0.3, -0.8)):
         rel, vel = jnp.asarray([x0, 0.0]), jnp.asarray([v0, 0.0])
-        t_max = float(gait_lib.com_lead_time_limit(params, w, rel, vel))
+        t_max = float(step_timing.com_lead_time_limit(params, w, rel, vel))
         assert 0 < t_max < params.max_step_duration
         sol = solve_ivp(
             lambda _, x: [x[1], w**2 * x[0]], (0, t_max), [x0, v0], rtol=1e-11, atol=1e-12
         )
         assert sol.y[0, -1] == pytest.approx(lead, rel=1e-6)
         assert sol.y[1, -1] > 0  # crossing outwards
-    out = gait_lib.com_lead_time_limit(params, w, jnp.asarray([0.25, 0.0]), jnp.asarray([0.1, 0]))
+    out = step_timing.com_lead_time_limit(
+        params, w, jnp.asarray([0.25, 0.0]), jnp.asarray([0.1, 0])
+    )
     assert float(out) == 0.0
-    back = gait_lib.com_lead_time_limit(params, w, jnp.asarray([-0.3, 0.0]), jnp.asarray([0.5, 0]))
+    back = step_timing.com_lead_time_limit(
+        params, w, jnp.asarray([-0.3, 0.0]), jnp.asarray([0.5, 0])
+    )
     assert float(back) == params.max_step_duration
     # Gradients stay finite in every branch (crossing, staying out, never reaching).
     for x0, v0 in ((0.0, 0.8), (0.25, -0.5), (-0.3, 0.5)):
-        g = jax.grad(lambda r, v: gait_lib.com_lead_time_limit(params, w, r, v), (0, 1))(
+        g = jax.grad(lambda r, v: step_timing.com_lead_time_limit(params, w, r, v), (0, 1))(
             jnp.asarray([x0, 0.0]), jnp.asarray([v0, 0.0])
         )
         assert all(bool(jnp.all(jnp.isfinite(x))) for x in g)

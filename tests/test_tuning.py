@@ -84,7 +84,7 @@ def test_shipped_tuned_shaking_gains_load_and_keep_the_damping_ratio():
 
 
 def test_gain_space_tunes_replan_gamma_inside_zero_one():
-    from jaxloco.locomotion.gait import GaitParams
+    from jaxloco.locomotion.gait_params import GaitParams
 
     base = default_gains(body_shaking_config("H2").tasks)
     base_gait = {"replan_gamma": GaitParams().replan_gamma}
@@ -110,7 +110,7 @@ def test_gain_space_tunes_replan_gamma_inside_zero_one():
 
 
 def test_gain_space_tunes_the_replan_threshold_as_a_positive_scale():
-    from jaxloco.locomotion.gait import GaitParams
+    from jaxloco.locomotion.gait_params import GaitParams
 
     base_gait = {"replan_threshold": GaitParams().replan_threshold}
     space = GainSpace(("gait.replan_threshold",), max_log_scale=2.0)
@@ -153,7 +153,7 @@ def test_smoothed_gradient_sees_a_step_that_pathwise_derivatives_miss():
 
 
 def test_gains_file_carries_tuned_gait_numbers(tmp_path):
-    from jaxloco.locomotion.gait import GaitParams
+    from jaxloco.locomotion.gait_params import GaitParams
 
     path = save_gains(tmp_path / "g.json", {}, gait={"replan_gamma": np.float32(0.3)})
     assert load_gait(path) == {"replan_gamma": pytest.approx(0.3)}

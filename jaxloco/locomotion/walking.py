@@ -1,7 +1,7 @@
 """The walking controller: gait state machine + learned step planner + WBLC, one tick.
 
 :func:`make_walking_controller` binds a model, a WBLC configuration (the walking hierarchy
-of Section V-B by default), :class:`~jaxloco.locomotion.gait.GaitParams` and a step policy
+of Section V-B by default), :class:`~jaxloco.locomotion.gait_params.GaitParams` and a step policy
 (the shipped default, ``load_planner()``). The result's ``step(t, qpos, qvel, state)`` is pure
 and jittable, and ``jax.vmap`` batches it over robots: the same function drives MuJoCo's C
 engine (:mod:`jaxloco.sim.mujoco_c`) and MJX rollouts (:mod:`jaxloco.sim.mjx_loop`).
@@ -23,7 +23,8 @@ from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
 from jaxloco.learning.loading import load_planner
 from jaxloco.learning.scaled import ScaledPlanner, planner_at_height
 from jaxloco.locomotion import gait as gait_lib
-from jaxloco.locomotion.gait import GaitParams, GaitState
+from jaxloco.locomotion.gait import GaitState
+from jaxloco.locomotion.gait_params import GaitOverrides, GaitParams
 from jaxloco.locomotion.walking_log import WalkingLog
 from jaxloco.planner.protocol import Planner
 from jaxloco.robots import DEFAULT_ROBOT, RobotDescription, check_model, robot_scale
@@ -81,7 +82,7 @@ class WalkingController:
         heading=0.0,
         turns=None,
         num_turns: int = 1,
-        overrides: gait_lib.GaitOverrides | None = None,
+        overrides: GaitOverrides | None = None,
     ) -> WalkingState:
         """The controller's state for a robot standing at ``qpos``; ``overrides``: this
         robot's per-robot gait numbers (default: ``GaitOverrides.of(gait_params)``).

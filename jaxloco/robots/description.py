@@ -218,7 +218,7 @@ def com_height(robot: RobotDescription, model: mujoco.MjModel) -> float:
 def robot_scale(robot: RobotDescription, model: mujoco.MjModel) -> FroudeScale:
     """The Froude scale of ``robot`` (``length_scale``, else its CoM height in the keyframe
     over the reference's): gait and planner numbers chosen for the reference robot serve it
-    scaled (:meth:`~jaxloco.locomotion.gait.GaitParams.scaled`,
+    scaled (:meth:`~jaxloco.locomotion.gait_params.GaitParams.scaled`,
     :class:`~jaxloco.learning.scaled.ScaledPlanner`)."""
     if robot.length_scale is not None:
         return FroudeScale(float(robot.length_scale))

@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxloco.locomotion.gait import GaitOverrides
+from jaxloco.locomotion.gait_params import GaitOverrides
 from jaxloco.locomotion.walking import WalkingController, WalkingState
 
 NUM_TURNS = 64
