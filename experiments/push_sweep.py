@@ -14,7 +14,7 @@
 
 ``task=limits`` (the default) searches, per direction, phase, push duration and replanning
 setting, the largest impulse the controller recovers (bisection with noisy replicas,
-:mod:`jaxloco.sweep.limits`): ``summary.md``/``.json``, ``limits_polar.png``,
+:mod:`jaxloco.sweep.bisection`): ``summary.md``/``.json``, ``limits_polar.png``,
 ``limits_heatmap.png``. ``task=grid`` runs the pushes of ``sweep`` (every combination of
 its lists): ``summary.md``/``.json``, ``success_polar.png``, ``success_vs_phase.png``.
 
@@ -49,7 +49,8 @@ from jaxloco.locomotion import GaitParams
 from jaxloco.robots import robot_by_name
 from jaxloco.sim.mjx_loop import PhysicsParams
 from jaxloco.sweep import SweepSpec, run_sweep, write_report
-from jaxloco.sweep.limits import FINE_SEARCH, LimitSearch, run_limit_search
+from jaxloco.sweep.limit_search import FINE_SEARCH, LimitSearch
+from jaxloco.sweep.limits import run_limit_search
 from jaxloco.sweep.limits_report import write_limits_report
 
 log = logging.getLogger(__name__)
@@ -76,8 +77,8 @@ class PushSweepConfig(RunConfig):
     task: str = "limits"
     """``limits``: the limit search (``search``); ``grid``: the pushes of ``sweep``."""
     search: Any = None
-    """The limit search (:class:`jaxloco.sweep.limits.LimitSearch`); ``search=fine`` picks
-    the finer preset (``limits.FINE_SEARCH``)."""
+    """The limit search (:class:`jaxloco.sweep.limit_search.LimitSearch`); ``search=fine`` picks
+    the finer preset (``limit_search.FINE_SEARCH``)."""
     sweep: SweepSchema = field(
         default_factory=lambda: SweepSchema(fall_height=robot_default("fall_height"))
     )

@@ -36,7 +36,7 @@ from jaxloco.locomotion.gait_params import GaitParams
 from jaxloco.locomotion.walking import robot_gait
 from jaxloco.robots import RobotDescription, robot_by_name
 from jaxloco.runtime import configure, enable_compilation_cache, quiet_library_logs, watchdog
-from jaxloco.sweep.limits import PAPER_MASS
+from jaxloco.sweep.limit_search import PAPER_MASS
 
 
 @dataclass

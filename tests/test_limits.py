@@ -10,7 +10,8 @@ import pytest
 from cli_helpers import run_cli
 
 from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
-from jaxloco.sweep.limits import LimitSearch, round_table, search_limits
+from jaxloco.sweep.bisection import search_limits
+from jaxloco.sweep.limit_search import LimitSearch, round_table
 
 SMALL = dict(
     directions_deg=(0.0, 90.0, 180.0),

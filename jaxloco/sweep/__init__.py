@@ -10,12 +10,16 @@ and writes them to disk as it goes (:mod:`.store`). Chunks run in this process
 (:mod:`.executors`) or as tasks on Dask distributed (:mod:`.cluster`).
 :func:`write_report` turns a run directory into plots and tables (:mod:`.report`).
 :func:`run_limit_search` finds the largest recovered impulse per direction and phase by
-bisection, one sweep per round (:mod:`.limits`, reported by :mod:`.limits_report`).
+bisection, one sweep per round (:mod:`.limits`; the search's settings :mod:`.limit_search`,
+its bisection :mod:`.bisection`, its result :mod:`.limit_result`, reported by
+:mod:`.limits_report`).
 """
 
 from jaxloco.sweep.chunks import ChunkReport, ChunkRunner
 from jaxloco.sweep.job import BACKENDS, SweepJob
-from jaxloco.sweep.limits import FINE_SEARCH, LimitResult, LimitSearch, run_limit_search
+from jaxloco.sweep.limit_result import LimitResult
+from jaxloco.sweep.limit_search import FINE_SEARCH, LimitSearch
+from jaxloco.sweep.limits import run_limit_search
 from jaxloco.sweep.limits_report import write_limits_report
 from jaxloco.sweep.outcome import FIELDS
 from jaxloco.sweep.report import paired_comparison, summarize, write_report

@@ -17,7 +17,8 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxloco.runtime import write_json
-from jaxloco.sweep.limits import LimitResult, paper_impulse_for
+from jaxloco.sweep.limit_result import LimitResult
+from jaxloco.sweep.limit_search import paper_impulse_for
 
 
 def _variants(result: LimitResult):
