@@ -126,3 +126,22 @@ def test_every_dataclass_field_has_a_docstring():
                     where = path.relative_to(PACKAGE.parent)
                     missing.append(f"{where}:{stmt.lineno} {node.name}.{stmt.target.id}")
     assert not missing, "fields without a docstring:\n" + "\n".join(missing)
+
+
+def test_function_level_imports_say_why():
+    """An import inside a function hides what a module depends on (and can hide a cycle):
+    each is marked ``# noqa: PLC0415`` with the reason next to it (a heavy or optional
+    import only some calls need)."""
+    unmarked = []
+    for path in sorted(PACKAGE.rglob("*.py")):
+        source = path.read_text()
+        lines = source.splitlines()
+        for node in ast.walk(ast.parse(source)):
+            if not isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for inner in ast.walk(node):
+                if isinstance(inner, (ast.Import, ast.ImportFrom)):
+                    if "PLC0415" not in lines[inner.lineno - 1]:
+                        where = path.relative_to(PACKAGE.parent)
+                        unmarked.append(f"{where}:{inner.lineno} {ast.unparse(inner)}")
+    assert not unmarked, "function-level imports without a reason:\n" + "\n".join(unmarked)

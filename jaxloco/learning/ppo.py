@@ -25,6 +25,7 @@ from brax.training.acme import running_statistics, specs
 from brax.training.agents.ppo import networks as ppo_networks
 from brax.training.agents.ppo import train as brax_ppo
 from flax import serialization, struct
+from tqdm.auto import tqdm
 
 from jaxloco import validation as v
 from jaxloco.config import to_params
@@ -217,8 +218,6 @@ def train_ppo(
     """Train the baseline (see the module docstring) on the step task of ``psp``, episodes
     starting as ``starts`` draws them with ``config.pushed_fraction``; progress bar over
     env steps."""
-    from tqdm.auto import tqdm
-
     starts = dataclasses.replace(starts, pushed_fraction=config.pushed_fraction)
     env = StepEnv(psp, starts)
     basin_key = jax.random.key(config.basin_seed)

@@ -19,11 +19,13 @@ Presets:
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import time
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from tqdm.auto import tqdm
 
 from jaxloco import validation as v
 from jaxloco.learning import policy as pol
@@ -293,15 +295,11 @@ def train(config: TrainConfig = TrainConfig(), progress: bool = True, state=None
 
 
 def _progress_bar(total: int, enabled: bool):
-    from tqdm.auto import tqdm
-
     return tqdm(total=total, desc="RL-PSP", unit="it", disable=not enabled, leave=True)
 
 
 def params_fingerprint(params) -> str:
     """A short hash of the weights (reproducibility checks)."""
-    import hashlib
-
     h = hashlib.sha256()
     for leaf in jax.tree.leaves(params):
         h.update(np.asarray(jnp.asarray(leaf)).tobytes())

@@ -27,6 +27,7 @@ from jaxloco.learning.loading import load_planner
 from jaxloco.locomotion import make_walking_controller
 from jaxloco.locomotion.walking import robot_planner
 from jaxloco.robots import robot_by_name
+from jaxloco.runtime import enable_compilation_cache
 from jaxloco.sim.mjx_loop import physics_model
 from jaxloco.sim.push import PushArrays, body_index
 from jaxloco.sweep.backends import CBatchBackend, ChunkStarts, MJXBackend
@@ -130,8 +131,6 @@ class ChunkRunner:
 
     def _init(self, job: SweepJob, make_backend: bool) -> None:
         if job.cache_dir:
-            from jaxloco.runtime import enable_compilation_cache
-
             enable_compilation_cache(job.cache_dir)
         self.job = job
         self.robot = robot_by_name(job.robot)

@@ -186,11 +186,12 @@ def run_table(
     if auto_workers:
         workers = _auto_workers(job.backend, sum(len(chunks[i]) for i in todo) * job.horizon)
     if todo and client is not None:
-        from jaxloco.sweep.cluster import run_on_dask
+        # Dask's import is heavy: only a sweep on workers pays for it.
+        from jaxloco.sweep.cluster import run_on_dask  # noqa: PLC0415
 
         record = run_on_dask(job, todo, client, progress, runner)
     elif todo and (address or min(workers, len(todo)) > 1):
-        from jaxloco.sweep.cluster import dask_client, run_on_dask
+        from jaxloco.sweep.cluster import dask_client, run_on_dask  # noqa: PLC0415
 
         with dask_client(address, min(workers, len(todo))) as client:
             record = run_on_dask(job, todo, client, progress, runner)

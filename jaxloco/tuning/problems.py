@@ -35,6 +35,8 @@ from jaxloco.dynamics.model import keyframe_qpos
 from jaxloco.locomotion.gait import com_reference
 from jaxloco.sim.mjx_loop import init_loop_state
 from jaxloco.sim.push import PushArrays, body_index
+from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states
+from jaxloco.sweep.starts import snapshot_walk
 from jaxloco.tuning.gains import GainSpace
 from jaxloco.tuning.rollout import check_differentiable, mean_costs
 
@@ -307,9 +309,6 @@ def push_loss(
     in s after the push instant (``params.phase`` of step ``params.push_step``; 0: at it).
     ``space`` may name WBLC gains and ``"gait.replan_gamma"``.
     """
-    from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states
-    from jaxloco.sweep.starts import snapshot_walk
-
     base = ctrl.wblc.default_gains()
     space.check(base)
     base_gait = dataclasses.asdict(ctrl.gait_params)
