@@ -10,7 +10,7 @@
     jaxloco push-sweep workers=1                      # in this process (default: per core)
     jaxloco push-sweep hydra.run.dir=outputs/my_sweep # run again: resumes
     jaxloco push-sweep gains_file=outputs/tune/tuned_gains.json   # tuned gains and gamma
-    jaxloco sweep-report outputs/my_sweep             # rebuild a grid sweep's report
+    jaxloco sweep-report run_dir=outputs/my_sweep     # rebuild a grid sweep's report
 
 ``task=limits`` (the default) searches, per direction, phase, push duration and replanning
 setting, the largest impulse the controller recovers (bisection with noisy replicas,

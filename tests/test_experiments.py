@@ -103,3 +103,16 @@ def test_push_sweep_config_carries_the_walking_force_qp():
     cfg.force_qp.alpha = 2.5
     with pytest.raises(ValueError, match="alpha"):
         to_params(ForceQPParams, cfg.force_qp)
+
+
+def test_sweep_report_names_a_missing_run_directory(tmp_path):
+    """``jaxloco sweep-report`` is a hydra app: without ``run_dir``, or with one that holds
+    no sweep, it stops with an error that says so."""
+    from cli_helpers import run_cli
+
+    missing = run_cli(["sweep-report"], tmp_path, timeout=300)
+    assert missing.returncode != 0 and "run_dir: give a push-sweep run directory" in (
+        missing.stderr
+    ), missing.stderr[-2000:]
+    empty = run_cli(["sweep-report", f"run_dir={tmp_path / 'nothing'}"], tmp_path, timeout=300)
+    assert empty.returncode != 0

@@ -211,12 +211,11 @@ def test_limit_searches_compare_per_direction(tmp_path):
         command = [sys.executable, "-m", "jaxloco.cli", "limits-compare", *args]
         return subprocess.run(command, capture_output=True, text=True, timeout=300)
 
-    proc = compare_cli(
-        str(tmp_path / "bound"), str(tmp_path / "model"), "--labels", "500 N m", "model",
-        "--out", str(tmp_path / "cmp"),
-    )  # fmt: skip
+    runs = f"runs=[{tmp_path / 'bound'},{tmp_path / 'model'}]"
+    proc = compare_cli(runs, 'labels=["500 N m",model]', f"hydra.run.dir={tmp_path / 'cmp'}")
     assert proc.returncode == 0, proc.stderr[-3000:]
-    assert "| 90 deg |" in (tmp_path / "cmp" / "comparison.md").read_text()
+    table = (tmp_path / "cmp" / "comparison.md").read_text()
+    assert "| direction | 500 N m | model |" in table and "| 90 deg |" in table
     assert (tmp_path / "cmp" / "comparison_polar.png").stat().st_size > 0
-    bad = compare_cli(str(tmp_path / "bound"), "--out", str(tmp_path / "x"))
-    assert bad.returncode != 0 and "at least two" in bad.stderr
+    bad = compare_cli(f"runs=[{tmp_path / 'bound'}]", f"hydra.run.dir={tmp_path / 'x'}")
+    assert bad.returncode != 0 and "runs: needs at least two" in bad.stderr, bad.stderr[-2000:]

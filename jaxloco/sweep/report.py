@@ -1,4 +1,5 @@
-"""Reports of a push sweep, rebuilt from what is on disk (``jaxloco sweep-report RUN_DIR``).
+"""Reports of a push sweep, rebuilt from what is on disk (``jaxloco sweep-report
+run_dir=RUN_DIR``).
 
 - ``success_polar.png``: success rate per direction x impulse, one polar map per
   replanning setting.
