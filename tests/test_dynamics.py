@@ -8,8 +8,15 @@ import pytest
 from mujoco import mjx
 
 from jaxloco.dynamics import jacobians as J
+from jaxloco.dynamics.engine_terms import (
+    ENGINE_FIELDS,
+    dense_mass_matrix,
+    engine_data,
+    engine_terms,
+)
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.dynamics.terms import joint_space_terms
+from jaxloco.sim import run_closed_loop
 
 SITES = ("left_foot_cop", "right_foot_contact2", "left_hand", "right_hand", "torso", "pelvis")
 
@@ -112,6 +119,53 @@ def test_jacobians_and_jdot_qdot_match_mujoco(name, model, sites, seed, smooth_f
     jac_com = np.zeros((3, model.nv))
     mujoco.mj_jacSubtreeCom(model, data, jac_com, 0)
     np.testing.assert_allclose(J.com_jacobian(mx, dx), jac_com, atol=1e-12)
+    # MuJoCo C's own terms, put where MJX's stages put theirs, are MJX's (ball joints too).
+    de = jax.jit(engine_data)(mx, engine_terms(data))
+    for field in set(ENGINE_FIELDS) - {"qpos", "qvel", "crb", "M"}:  # the derived ones
+        np.testing.assert_allclose(
+            getattr(de, field), getattr(dx, field), atol=1e-10, err_msg=f"{name}:{field}"
+        )
+    np.testing.assert_allclose(de._impl.crb, dx._impl.crb, atol=1e-10)
+    full = np.zeros((model.nv, model.nv))
+    mujoco.mj_fullM(model, data, full)
+    dense = dense_mass_matrix(mx, jnp.asarray(data.M))
+    np.testing.assert_array_equal(dense, full)
+    np.testing.assert_allclose(dense, mjx.full_m(mx, dx), atol=1e-10)
+
+
+def test_the_split_step_is_mj_step_and_the_controller_sees_the_state_it_acts_on():
+    """``run_closed_loop(engine=True)`` (``mj_step1``, controller, ``mj_step2``) moves the
+    robot exactly as ``mj_step`` does, and the terms it hands the controller are the ones
+    MuJoCo computes for the state the controller acts on (not the step before's)."""
+    model = load_valkyrie()
+    kp, kd = 50.0, 2.0
+    seen = []
+
+    def pd(t, qpos, qvel, carry, engine=None):
+        if engine is not None:
+            check = mujoco.MjData(model)
+            check.qpos[:], check.qvel[:] = qpos, qvel
+            mujoco.mj_forward(model, check)
+            seen.append(
+                max(
+                    np.abs(engine.site_xpos - check.site_xpos).max(),
+                    np.abs(engine.qfrc_bias - check.qfrc_bias).max(),
+                )
+            )
+        return -kp * qpos[7 : 7 + model.nu] - kd * qvel[6 : 6 + model.nu], carry, np.zeros(())
+
+    runs = []
+    for engine in (False, True):
+        data = random_state(model, 3, qvel_scale=0.3)
+        log, _ = run_closed_loop(model, data, pd, None, 200, engine=engine)
+        runs.append(log)
+    np.testing.assert_array_equal(runs[0].qpos, runs[1].qpos)
+    np.testing.assert_array_equal(runs[0].ctrl, runs[1].ctrl)
+    assert len(seen) == 200 and max(seen) < 1e-12
+    rk4 = load_valkyrie()
+    rk4.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
+    with pytest.raises(ValueError, match="RK4"):
+        run_closed_loop(rk4, mujoco.MjData(rk4), pd, None, 1, engine=True)
 
 
 def test_jdot_qdot_matches_finite_differences():

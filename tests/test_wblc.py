@@ -13,6 +13,7 @@ from jaxloco.control.pinv import damped_pinv_psd, pinv_psd, rank
 from jaxloco.control.presets import walking_config, wblc_config
 from jaxloco.control.wblc import make_wblc
 from jaxloco.dynamics import jacobians as J
+from jaxloco.dynamics.engine_terms import engine_terms
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.robots.valkyrie import LEG_JOINTS
 from jaxloco.sim import run_closed_loop
@@ -253,6 +254,41 @@ def valkyrie():
         refs[name] = refs[name].replace(weight=jnp.zeros(()))
     tick = jax.jit(lambda q, v, refs, prev, gains: ctrl(q, v, refs, jnp.ones(2), gains, prev))
     return model, data, ctrl, refs, tick
+
+
+@pytest.fixture(scope="module")
+def engine_tick(valkyrie):
+    """The tick reading what MuJoCo C computed for the state (``EngineTerms``)."""
+    _, _, ctrl, _, _ = valkyrie
+
+    def tick(engine, refs, prev, gains):
+        snap = ctrl.snapshot(None, None, engine)
+        return ctrl(engine.qpos, engine.qvel, refs, jnp.ones(2), gains, prev, snap=snap)
+
+    return jax.jit(tick)
+
+
+def test_mujoco_cs_dynamics_give_the_mjx_torques(valkyrie, engine_tick):
+    """The tick on MuJoCo C's terms of a state (``mj_step1``) and on MJX's own give the
+    same torques, forces and accelerations (float64: to round-off)."""
+    model, data, ctrl, refs, tick = valkyrie
+    rng = np.random.default_rng(11)
+    d = mujoco.MjData(model)
+    d.qpos[:] = data.qpos
+    d.qpos[7:] += rng.normal(scale=0.05, size=model.nq - 7)
+    d.qvel[:] = rng.normal(scale=0.2, size=model.nv)
+    mujoco.mj_step1(model, d)
+    prev, gains = ctrl.initial_qp_state(), ctrl.default_gains()
+    want = tick(jnp.asarray(d.qpos), jnp.asarray(d.qvel), refs, prev, gains)
+    got = engine_tick(engine_terms(d), refs, prev, gains)
+    assert float(jnp.max(jnp.abs(want.torques))) > 10.0  # a real tick, not a trivial match
+    np.testing.assert_allclose(got.torques, want.torques, rtol=1e-9, atol=1e-8)
+    np.testing.assert_allclose(
+        got.diagnostics.contact_forces, want.diagnostics.contact_forces, rtol=1e-9, atol=1e-8
+    )
+    np.testing.assert_allclose(
+        got.diagnostics.qdd_desired, want.diagnostics.qdd_desired, rtol=1e-9, atol=1e-8
+    )
 
 
 def test_one_tick_is_consistent(valkyrie):
@@ -560,10 +596,10 @@ def test_torque_gradients_wrt_gains_match_finite_differences(valkyrie):
 @pytest.mark.parametrize(
     "seconds", [3, pytest.param(10, marks=pytest.mark.slow)], ids=["3s", "10s"]
 )
-def test_valkyrie_stands_under_wblc(valkyrie, seconds):
-    """Stands still on MuJoCo C under the walking hierarchy: CoM within 1 cm, no relaxed
-    friction cone. CI runs 3 s (~20 ms a tick in float64 on 2 cores); 10 s is slow."""
-    model, _, ctrl, refs, tick = valkyrie
+def test_valkyrie_stands_under_wblc(valkyrie, engine_tick, seconds):
+    """Stands still on MuJoCo C under the walking hierarchy, reading MuJoCo's own terms of
+    each state: CoM within 1 cm, no relaxed friction cone. CI runs 3 s; 10 s is slow."""
+    model, _, ctrl, refs, _ = valkyrie
     ticks = 1000 * seconds
     data = mujoco.MjData(model)
     data.qpos[:] = keyframe_qpos(model, "walk")
@@ -571,12 +607,18 @@ def test_valkyrie_stands_under_wblc(valkyrie, seconds):
     com0 = data.subtree_com[1].copy()
     gains = ctrl.default_gains()
 
-    def controller(t, qpos, qvel, prev):
-        out = tick(jnp.asarray(qpos), jnp.asarray(qvel), refs, prev, gains)
+    def controller(t, qpos, qvel, prev, engine):
+        out = engine_tick(engine, refs, prev, gains)
         return out.torques, out.qp_state, out.diagnostics
 
     log, _ = run_closed_loop(
-        model, data, controller, ctrl.initial_qp_state(), ticks, stop=lambda d: d.qpos[2] < 0.8
+        model,
+        data,
+        controller,
+        ctrl.initial_qp_state(),
+        ticks,
+        stop=lambda d: d.qpos[2] < 0.8,
+        engine=True,
     )
     assert not log.fell and len(log.time) == ticks
     com_err = np.linalg.norm(log.outputs.task_errors["com"], axis=1)

@@ -33,6 +33,7 @@ from mujoco import mjx
 
 from jaxloco.dynamics import centroidal, se3
 from jaxloco.dynamics import jacobians as jac
+from jaxloco.dynamics.engine_terms import EngineTerms, dense_mass_matrix, engine_data
 from jaxloco.dynamics.terms import joint_space_terms
 
 KINDS = ("com", "cam", "orientation", "position", "joints", "contact")
@@ -147,12 +148,28 @@ class RobotSnapshot:
 
 def snapshot(mx: mjx.Model, qpos, qvel) -> RobotSnapshot:
     """The dynamics of the state ``(qpos, qvel)`` on the MJX model ``mx``."""
-    d = mjx.make_data(mx).replace(qpos=qpos, qvel=qvel)
-    d = jac.smooth(mx, d)
+    d = jac.smooth(mx, mjx.make_data(mx).replace(qpos=qpos, qvel=qvel))
+    return snapshot_of_data(mx, d, mjx.full_m(mx, d))
+
+
+def engine_snapshot(mx: mjx.Model, terms: EngineTerms) -> RobotSnapshot:
+    """The dynamics of a state from what MuJoCo's C engine computed for it (:mod:`~jaxloco.
+    dynamics.engine_terms`): the same snapshot as :func:`snapshot` to float round-off,
+    without MJX's kinematics, inertia and Newton-Euler passes."""
+    d = engine_data(mx, terms)
+    return snapshot_of_data(mx, d, dense_mass_matrix(mx, jnp.asarray(terms.M, d.qvel.dtype)))
+
+
+def snapshot_of_data(mx: mjx.Model, d: mjx.Data, mass_matrix) -> RobotSnapshot:
+    """The snapshot of ``d`` (after :func:`~jaxloco.dynamics.jacobians.smooth` or holding
+    the engine's fields), with its full mass matrix ``mass_matrix`` (nv, nv)."""
+    qvel = d.qvel
     jcm = centroidal.centroidal_momentum_matrix(mx, d)
     total = jnp.sum(mx.body_mass)
     # The linear rows of J_cm are the total mass times the CoM Jacobian (gravity's map).
-    terms = joint_space_terms(mx, d, smoothed=True, com_jac=jcm[3:] / total)
+    terms = joint_space_terms(
+        mx, d, smoothed=True, com_jac=jcm[3:] / total, mass_matrix=mass_matrix
+    )
     chol = jnp.linalg.cholesky(terms.mass_matrix)
     nv = chol.shape[0]
     chol_inv = jax.scipy.linalg.solve_triangular(chol, jnp.eye(nv, dtype=chol.dtype), lower=True)

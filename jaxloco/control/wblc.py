@@ -50,6 +50,7 @@ from jaxloco.control.tasks import (
     TaskReference,
     TaskSpec,
     default_gains,
+    engine_snapshot,
     hold_reference,
     hold_reference_from_data,
     snapshot,
@@ -58,6 +59,7 @@ from jaxloco.control.tasks import (
 )
 from jaxloco.control.torque_limits import TorqueLimitParams, TorqueLimitSolution, limit_torques
 from jaxloco.dynamics import jacobians as jac
+from jaxloco.dynamics.engine_terms import EngineTerms
 from jaxloco.dynamics.model import without_colliders
 
 
@@ -277,7 +279,11 @@ class WBLC:
         """``{task name: PDGains}``: the config's default gains as traced data."""
         return default_gains(self.config.tasks)
 
-    def snapshot(self, qpos, qvel) -> RobotSnapshot:
+    def snapshot(self, qpos, qvel, engine: EngineTerms | None = None) -> RobotSnapshot:
+        """The dynamics of ``(qpos, qvel)``: computed by MJX, or read from ``engine``, what
+        MuJoCo C computed for this same state (:mod:`~jaxloco.dynamics.engine_terms`)."""
+        if engine is not None:
+            return engine_snapshot(self.mx, engine)
         return snapshot(self.mx, qpos, qvel)
 
     def hold_references(self, qpos, qvel=None) -> dict[str, TaskReference]:

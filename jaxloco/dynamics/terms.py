@@ -26,17 +26,22 @@ class JointSpaceTerms:
 
 
 def joint_space_terms(
-    m: mjx.Model, d: mjx.Data, smoothed: bool = False, com_jac: jax.Array | None = None
+    m: mjx.Model,
+    d: mjx.Data,
+    smoothed: bool = False,
+    com_jac: jax.Array | None = None,
+    mass_matrix: jax.Array | None = None,
 ) -> JointSpaceTerms:
     """``A``, ``b`` and ``g`` at ``(d.qpos, d.qvel)``. ``smoothed``: :func:`smooth` was run.
     ``com_jac``: the (3, nv) CoM Jacobian when the caller has it (e.g. the linear rows of
-    the centroidal momentum matrix over the total mass)."""
+    the centroidal momentum matrix over the total mass); ``mass_matrix``: ``A`` when the
+    caller has it (e.g. from MuJoCo C, :mod:`.engine_terms`)."""
     d = d if smoothed else smooth(m, d)
     total_mass = m.body_mass.sum()
     com_jac = com_jacobian(m, d) if com_jac is None else com_jac
     gravity = -total_mass * (com_jac.T @ m.opt.gravity)
     return JointSpaceTerms(
-        mass_matrix=mjx.full_m(m, d),
+        mass_matrix=mjx.full_m(m, d) if mass_matrix is None else mass_matrix,
         coriolis=d.qfrc_bias - gravity,
         gravity=gravity,
     )

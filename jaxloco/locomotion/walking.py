@@ -18,8 +18,8 @@ from flax import struct
 from jaxloco.control.force_qp import ForceQPState
 from jaxloco.control.presets import foot_task, walking_config
 from jaxloco.control.tasks import TaskReference
-from jaxloco.control.tasks import snapshot as robot_snapshot
 from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
+from jaxloco.dynamics.engine_terms import EngineTerms
 from jaxloco.learning.loading import load_planner
 from jaxloco.learning.scaled import ScaledPlanner, planner_at_height
 from jaxloco.locomotion import gait as gait_lib
@@ -83,16 +83,19 @@ class WalkingController:
         turns=None,
         num_turns: int = 1,
         overrides: GaitOverrides | None = None,
+        engine: EngineTerms | None = None,
     ) -> WalkingState:
         """The controller's state for a robot standing at ``qpos``; ``overrides``: this
-        robot's per-robot gait numbers (default: ``GaitOverrides.of(gait_params)``).
+        robot's per-robot gait numbers (default: ``GaitOverrides.of(gait_params)``);
+        ``engine``: MuJoCo C's terms of this state, read instead of computing them
+        (:mod:`~jaxloco.dynamics.engine_terms`).
 
         Jit it at the call site (``jax.jit(WalkingController.init,
         static_argnames="num_turns")(ctrl, qpos, ...)``): op by op, MJX's kinematics behind
         it take tens of seconds."""
         qpos = jnp.asarray(qpos)
         qvel = jnp.zeros(self.wblc.mx.nv, qpos.dtype) if qvel is None else jnp.asarray(qvel)
-        snap = robot_snapshot(self.wblc.mx, qpos, qvel)
+        snap = self.wblc.snapshot(qpos, qvel, engine)
         feet = snap.data.site_xpos[jnp.asarray(self.foot_sites)]
         g = gait_lib.init_gait(
             self.gait_params,
@@ -107,12 +110,16 @@ class WalkingController:
         return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
 
     def step(
-        self, t, qpos, qvel, state: WalkingState, gains=None
+        self, t, qpos, qvel, state: WalkingState, gains=None, engine: EngineTerms | None = None
     ) -> tuple[jax.Array, WalkingState, WalkingLog]:
-        """One control tick: ``(torques, new state, log)``, the log a :class:`WalkingLog`."""
+        """One control tick: ``(torques, new state, log)``, the log a :class:`WalkingLog`.
+
+        ``engine``: what MuJoCo C computed for this same state (``qpos``, ``qvel``), read
+        instead of computing it with MJX (:mod:`~jaxloco.dynamics.engine_terms`): the same
+        torques to float round-off, a smaller program and a shorter tick."""
         wblc, params, psp = self.wblc, self.gait_params, self.psp
         with jax.named_scope("wblc.snapshot"):
-            snap = wblc.snapshot(qpos, qvel)
+            snap = wblc.snapshot(qpos, qvel, engine)
         dtype = snap.data.qvel.dtype
         t = jnp.asarray(t, dtype)
         feet = snap.data.site_xpos[jnp.asarray(self.foot_sites)]

@@ -16,6 +16,8 @@ import mujoco
 import numpy as np
 from tqdm.auto import tqdm
 
+from jaxloco.dynamics.engine_terms import engine_terms
+
 Log = TypeVar("Log")
 """The type of a controller's per-tick log (e.g. a
 :class:`~jaxloco.locomotion.walking_log.WalkingLog`)."""
@@ -51,6 +53,7 @@ def run_closed_loop(
     perturb: Callable[[mujoco.MjData], None] | None = None,
     done: Callable[[Log], bool] | None = None,
     on_step: Callable[[mujoco.MjData], None] | None = None,
+    engine: bool = False,
 ) -> tuple[ClosedLoopLog[Log], object]:
     """Run ``steps`` physics steps with ``ctrl = controller(t, qpos, qvel, carry)``.
 
@@ -60,15 +63,26 @@ def run_closed_loop(
     ``perturb(data)`` runs before every physics step (e.g. sets ``xfrc_applied`` for pushes);
     ``done(log)`` ends the run (not as a fall) when the controller's log says so.
     ``on_step(data)`` runs after every physics step (e.g. a :mod:`.viewer` redraw).
+    ``engine``: each step is ``mj_step1``, the controller, ``mj_step2`` (the same physics
+    as ``mj_step``), and the controller is called as ``controller(t, qpos, qvel, carry,
+    engine=terms)`` with what ``mj_step1`` computed for the state
+    (:class:`~jaxloco.dynamics.engine_terms.EngineTerms`), so it need not compute it again.
     Returns the log and the final carry.
     """
+    if engine and model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4:
+        raise ValueError("run_closed_loop: engine=True needs mj_step1/mj_step2, which RK4 lacks")
     times, qpos, qvel, ctrl, logs = [], [], [], [], []
     fell = False
     bar = tqdm(
         range(steps), desc=progress if isinstance(progress, str) else "sim", disable=not progress
     )
     for _ in bar:
-        torques, carry, log = controller(data.time, data.qpos.copy(), data.qvel.copy(), carry)
+        if engine:
+            mujoco.mj_step1(model, data)
+            terms = engine_terms(data)
+            torques, carry, log = controller(data.time, terms.qpos, terms.qvel, carry, engine=terms)
+        else:
+            torques, carry, log = controller(data.time, data.qpos.copy(), data.qvel.copy(), carry)
         data.ctrl[:] = np.asarray(torques)
         times.append(data.time)
         qpos.append(data.qpos.copy())
@@ -77,7 +91,10 @@ def run_closed_loop(
         logs.append(log)
         if perturb is not None:
             perturb(data)
-        mujoco.mj_step(model, data)
+        if engine:
+            mujoco.mj_step2(model, data)
+        else:
+            mujoco.mj_step(model, data)
         if on_step is not None:
             on_step(data)
         if not np.all(np.isfinite(data.qpos)) or (stop is not None and stop(data)):

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from jaxloco.dynamics.engine_terms import engine_terms
 from jaxloco.locomotion.walking import WalkingController
 from jaxloco.locomotion.walking_log import WalkingLog
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
@@ -49,6 +50,7 @@ def simulate_walk(
     progress: bool | str = False,
     step=None,
     watch: Callable[[mujoco.MjModel, mujoco.MjData], Callable[[mujoco.MjData], None]] | None = None,
+    engine: bool = True,
 ) -> WalkRun:
     """Walk from the robot's keyframe for ``duration`` s (or until ``max_steps`` steps have
     begun), turning by ``turns`` (rad per step) and pushed by ``pushes``.
@@ -57,7 +59,9 @@ def simulate_walk(
     call traces again; the persistent compile cache saves the compile). ``fall_height``:
     base height (m) that ends the run as a fall (default: the robot's). ``watch(model,
     data)``: opens a view of the run (e.g. :func:`.viewer.open_viewer`) and returns what
-    is called after every physics step; its ``close()``, if it has one, runs at the end."""
+    is called after every physics step; its ``close()``, if it has one, runs at the end.
+    ``engine``: the controller reads the dynamics MuJoCo C computed for each state
+    (:func:`~.mujoco_c.run_closed_loop`'s ``engine``) instead of computing them with MJX."""
     fall_height = ctrl.robot.fall_height if fall_height is None else fall_height
     if duration <= 0:
         raise ValueError(f"duration must be > 0; got {duration}")
@@ -67,7 +71,8 @@ def simulate_walk(
     mujoco.mj_forward(sim_model, data)
     turns = None if turns is None or len(turns) == 0 else np.asarray(turns)
     init = jax.jit(WalkingController.init, static_argnames="num_turns")
-    state = init(ctrl, jnp.asarray(data.qpos), turns=turns)
+    terms = engine_terms(data) if engine else None
+    state = init(ctrl, jnp.asarray(data.qpos), turns=turns, engine=terms)
     rows = PushArrays.of(pushes) if pushes else None
     bodies = {body_index(model, p.body) for p in pushes}
     if len(bodies) > 1:
@@ -92,6 +97,7 @@ def simulate_walk(
             perturb=perturb,
             done=done,
             on_step=on_step,
+            engine=engine,
         )
     finally:
         if hasattr(on_step, "close"):

@@ -80,10 +80,10 @@ def shaking_simulator(
     default_gains = ctrl.default_gains()
 
     @jax.jit
-    def step(t, qpos, qvel, prev, gains, frequency):
+    def step(t, qpos, qvel, prev, gains, frequency, engine):
         quat, vel, acc = shaking_reference(shaking, q0, t, frequency)
         refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
-        snap = ctrl.snapshot(qpos, qvel)
+        snap = ctrl.snapshot(qpos, qvel, engine)  # what MuJoCo C computed for the state
         out = ctrl(qpos, qvel, refs, contact, gains=gains, previous=prev, snap=snap)
         dg = out.diagnostics
         slip = snap.data.site_xpos[points, :2] - points0.astype(snap.data.site_xpos.dtype)
@@ -109,11 +109,12 @@ def shaking_simulator(
         log, _ = run_closed_loop(
             model,
             data,
-            lambda t, qpos, qvel, prev: step(t, qpos, qvel, prev, g, f),
+            lambda t, qpos, qvel, prev, engine: step(t, qpos, qvel, prev, g, f, engine),
             ctrl.initial_qp_state(),
             int(round(duration / model.opt.timestep)),
             stop=lambda d: d.qpos[2] < fall_height,
             progress=progress,
+            engine=True,
         )
         return log
 

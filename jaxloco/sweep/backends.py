@@ -26,6 +26,7 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import batch as mj_batch
 from mujoco import mjx
 
+from jaxloco.dynamics.engine_terms import bind_engine_terms
 from jaxloco.locomotion.walking import WalkingController, WalkingState
 from jaxloco.runtime import single_thread_compiler_options
 from jaxloco.sim.mjx_loop import LoopState, closed_loop_step
@@ -146,16 +147,20 @@ class CBatchBackend:
         self._unpack = {}
 
     def _tick_for(self, layout: TreeLayout):
-        """The vmapped tick over packed states: ``(t, qpos, qvel, packed, alive) -> (torques
-        and push forces, packed)``. Packing the controller state, the outcome and the push
-        into one array per dtype keeps the per-tick call to a handful of arrays (each
-        array passed to or from a jitted call costs ~1-2 us of dispatch)."""
+        """The vmapped tick over packed states: ``(t, engine, packed, alive) -> (torques and
+        push forces, packed)``, ``engine`` what MuJoCo C computed for each robot's state
+        (:class:`~jaxloco.dynamics.engine_terms.EngineTerms`). Packing the controller state,
+        the outcome and the push into one array per dtype keeps the per-tick call to a
+        handful of arrays (each array passed to or from a jitted call costs ~1-2 us of
+        dispatch)."""
         if layout not in self._ticks:
             ctrl = self._ctrl
 
-            def tick(t, qpos, qvel, packed, alive):
+            def tick(t, engine, packed, alive):
                 cstate, outcome, push = layout.unpack(packed)
-                torques, new_cstate, log = ctrl.step(t, qpos, qvel, cstate)
+                torques, new_cstate, log = ctrl.step(
+                    t, engine.qpos, engine.qvel, cstate, engine=engine
+                )
                 outcome = update_outcome(outcome, log, alive)
                 cstate = jax.tree.map(lambda a, b: jnp.where(alive, b, a), cstate, new_cstate)
                 actions = jnp.concatenate([torques, push_force(push, t)])
@@ -170,11 +175,15 @@ class CBatchBackend:
     def run(self, starts: ChunkStarts, horizon_steps: int, progress=None) -> Outcome:
         m = self.model
         n = len(starts.times)
-        batch = mj_batch.Batch(m, n, nthread=self.nthread)
+        # Persistent: each simulation keeps its MjData, so a step continues from the
+        # position and velocity stages computed for the controller (no second pass).
+        batch = mj_batch.Batch(m, n, nthread=self.nthread, persistent=True)
         if batch.nstate != starts.physics.shape[1]:
             raise ValueError("start states do not match the model's mjSTATE_INTEGRATION size")
         batch.state[:] = starts.physics
-        qpos, qvel, time = batch.bind("qpos"), batch.bind("qvel"), batch.bind("time")
+        batch.forward(stage=mujoco.mjtStage.mjSTAGE_VEL)
+        engine = bind_engine_terms(batch)
+        qpos, time = engine.qpos, batch.bind("time")
         ctrl, xfrc = batch.bind("ctrl"), batch.bind("xfrc_applied")
         cstate = jax.tree.map(jnp.asarray, starts.controller)
         pushes = PushArrays(*(jnp.asarray(x) for x in starts.pushes))
@@ -195,7 +204,7 @@ class CBatchBackend:
         alive = np.ones(n, bool)
         fall_time = np.full(n, np.inf)
         for _ in range(horizon_steps):
-            actions, packed = tick(time, qpos, qvel, packed, alive)
+            actions, packed = tick(time, engine, packed, alive)
             ids = np.flatnonzero(alive)
             if ids.size == 0:
                 break
@@ -203,7 +212,7 @@ class CBatchBackend:
             ctrl[:] = actions[:, :nu]
             xfrc[:, self.push_body, :3] = actions[:, nu:]
             before = time.copy()
-            batch.step(ids)
+            batch.step(ids, stage=mujoco.mjtStage.mjSTAGE_VEL)
             fell = alive & (~np.all(np.isfinite(qpos), axis=1) | (qpos[:, 2] < self.fall_height))
             fall_time[fell] = before[fell] - t0[fell]
             alive &= ~fell

@@ -21,6 +21,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
+from jaxloco.dynamics.engine_terms import engine_terms
 from jaxloco.locomotion.gait_params import GaitOverrides
 from jaxloco.locomotion.walking import WalkingController, WalkingState
 
@@ -99,13 +100,16 @@ def walk_key(apex_speed: float, turn_deg: float, replan: bool) -> tuple:
 def initial_controller_state(
     ctrl: WalkingController, model: mujoco.MjModel, apex_speed, turn_deg, replan
 ):
-    qpos = jnp.asarray(ctrl.robot.keyframe_qpos(model))
+    data = mujoco.MjData(model)
+    data.qpos[:] = ctrl.robot.keyframe_qpos(model)
+    mujoco.mj_forward(model, data)
+    qpos = jnp.asarray(data.qpos)
     turns = np.full(NUM_TURNS, math.radians(turn_deg))
     overrides = GaitOverrides.of(
         ctrl.gait_params, jnp.asarray(qpos).dtype, replan=bool(replan), apex_speed=apex_speed
     )
     init = jax.jit(WalkingController.init, static_argnames="num_turns")
-    return init(ctrl, qpos, turns=turns, overrides=overrides)
+    return init(ctrl, qpos, turns=turns, overrides=overrides, engine=engine_terms(data))
 
 
 def snapshot_walk(
@@ -122,8 +126,10 @@ def snapshot_walk(
 ) -> WalkSnapshots:
     """Walk undisturbed until every phase of step ``push_step`` has been reached.
 
-    ``step_fn`` is the jitted ``ctrl.step``. Raises ``RuntimeError`` when the undisturbed
-    walk falls first: a sweep from a walk that cannot walk measures nothing.
+    ``step_fn`` is the jitted ``ctrl.step``, given what MuJoCo C computed for each state
+    (its ``engine``; each physics step is ``mj_step1``, the controller, ``mj_step2``).
+    Raises ``RuntimeError`` when the undisturbed walk falls first: a sweep from a walk that
+    cannot walk measures nothing.
     """
     phases = np.asarray(sorted(set(float(p) for p in phases)))
     data = mujoco.MjData(sim_model)
@@ -151,14 +157,16 @@ def snapshot_walk(
                 kept_times.append(data.time)
             if len(rows) == len(phases):
                 break
-        torques, cstate, log = step_fn(data.time, data.qpos.copy(), data.qvel.copy(), cstate)
+        mujoco.mj_step1(sim_model, data)  # with mj_step2 below: mj_step
+        terms = engine_terms(data)
+        torques, cstate, log = step_fn(data.time, terms.qpos, terms.qvel, cstate, engine=terms)
         data.ctrl[:] = np.asarray(torques)
         if push_times is None and int(log.step) == push_step:
             step_start = float(cstate.gait.step_start)
             step_duration = float(cstate.gait.step_duration)
             support = step_duration - blend
             push_times = step_start + blend + phases * support
-        mujoco.mj_step(sim_model, data)
+        mujoco.mj_step2(sim_model, data)
         if data.qpos[2] < fall_height or not np.all(np.isfinite(data.qpos)):
             raise RuntimeError(
                 f"undisturbed walk (apex speed {apex_speed}, turn {turn_deg} deg, replan "
