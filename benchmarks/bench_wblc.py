@@ -7,7 +7,9 @@ batch 64, each side by side with PlaCo), and PlaCo's C++ whole-body QP.
     python benchmarks/bench_wblc.py [--json PATH] [--quick]
 
 The tick is the walking hierarchy in double support (``jaxloco.control.presets``), float32,
-called as users call it: ``jax.jit`` of ``WBLC.__call__`` from Python. Stages are timed as
+called as users call it: ``jax.jit`` of ``WBLC.__call__`` from Python; the rows "MuJoCo C's
+terms" read the state's dynamics from MuJoCo C (``EngineTerms`` after ``mj_step1``), as
+the C loops do, instead of computing them with MJX. Stages are timed as
 separate jitted functions on the same state to show what bounds the time, and, batched
 as sweeps run it, by ablation: the whole vmapped tick with its stages replaced, one more at a
 time, by stand-ins of the same shapes (the force QP by an equal share of the net force, the
@@ -54,6 +56,7 @@ from jaxloco.control import force_qp, hierarchy  # noqa: E402
 from jaxloco.control import wblc as wblc_module  # noqa: E402
 from jaxloco.control.presets import walking_config  # noqa: E402
 from jaxloco.control.wblc import make_wblc  # noqa: E402
+from jaxloco.dynamics.engine_terms import engine_terms  # noqa: E402
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie  # noqa: E402
 from jaxloco.robots import ROBOTS  # noqa: E402
 from jaxloco.runtime import watchdog  # noqa: E402
@@ -136,6 +139,44 @@ def _torque_stand_in(ctrl, a_null, tau_task, rtol):
 
 
 TORQUE_ROWS_TARGET = "torque rows in the force QP, batch 64, over the plain tick"
+
+
+def engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats, batch=64):
+    """The tick on MuJoCo C's own terms of the state (``EngineTerms`` after ``mj_step1``),
+    as the C loops and the sweeps' C backend call it: one call and a batch."""
+    d = mujoco.MjData(model)
+    d.qpos[:], d.qvel[:] = data.qpos, np.asarray(v)
+    mujoco.mj_step1(model, d)
+    engine = engine_terms(d)  # numpy float64, converted at the call as the loops do
+
+    def tick(e, p):
+        snap = ctrl.snapshot(None, None, e)
+        return ctrl(e.qpos, e.qvel, refs, contact, previous=p, snap=snap)
+
+    one = jax.jit(tick)
+    comp, _ = compile_seconds(one, engine, prev)
+    t1 = time_calls(one, engine, prev, repeats=repeats, inner=20)
+    rows.append(
+        dict(
+            case="WBLC tick, single jitted call, MuJoCo C's terms",
+            per_tick_us=t1["median_s"] * 1e6,
+            ticks_per_s=1 / t1["median_s"],
+            compile_s=comp,
+        )
+    )
+    eb = jax.tree.map(lambda x: np.broadcast_to(x, (batch, *x.shape)).copy(), engine)
+    pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
+    batched = jax.jit(jax.vmap(tick))
+    comp_b, _ = compile_seconds(batched, eb, pb)
+    tb = time_calls(batched, eb, pb, repeats=3 * repeats)
+    rows.append(
+        dict(
+            case=f"WBLC tick, vmap batch {batch}, MuJoCo C's terms",
+            per_tick_us=tb["median_s"] / batch * 1e6,
+            ticks_per_s=batch / tb["median_s"],
+            compile_s=comp_b,
+        )
+    )
 
 
 def torque_limits_cost(model, refs, q, batch: int, rounds: int) -> dict:
@@ -437,6 +478,7 @@ def main():
 
         batched_calls = {}
         tick_rows(ctrl, batches)
+        engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats)
         stages, qp_only = stage_functions(ctrl, refs)
         for name, fn in stages.items():
             jf = jax.jit(fn)

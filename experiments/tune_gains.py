@@ -31,7 +31,6 @@ defaults lie between the validation ones), and report how far the feet crept
 creep) and ``summary.json`` to the run directory.
 """
 
-import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
@@ -40,7 +39,6 @@ import hydra
 import numpy as np
 from matplotlib.figure import Figure
 from omegaconf import OmegaConf
-from tqdm.auto import tqdm
 
 from jaxloco.app import RunConfig, launch, register, run_in_hydra
 from jaxloco.config import config_schema, to_params
@@ -59,9 +57,8 @@ from jaxloco.tuning.gains import GainSpace, tuned_values
 from jaxloco.tuning.optimize import TuneConfig, recorded_params, tune_in_dir
 from jaxloco.tuning.problems import ShakingLossParams, shaking_loss
 from jaxloco.tuning.rollout import tuning_physics
+from jaxloco.tuning.selection import select_iterate, warn_unless_held_out
 from jaxloco.viz.tuning import plot_loss_curve
-
-log = logging.getLogger(__name__)
 
 ProblemSchema = config_schema(ShakingLossParams)
 ShakingSchema = config_schema(ShakingParams)
@@ -141,21 +138,19 @@ def shake(simulate, frequencies, duration, gains=None) -> dict[str, ShakeRun]:
     return out
 
 
-def validate(simulate, frequencies, space, base, history, cfg) -> list[dict]:
-    """Score every ``validation_every``-th iterate (and the last) on MuJoCo C at
-    ``frequencies``: the worst RMS body error, infinite for a fall."""
-    picks = sorted({*range(0, len(history), cfg.validation_every), len(history) - 1})
-    rows = []
-    for it in tqdm(picks, desc="validation (MuJoCo C)"):
-        params = recorded_params(history[it])
+def validator(simulate, frequencies, space, base, duration: float):
+    """``validate(iteration, params) -> row`` for :func:`select_iterate`: the iterate's
+    gains shake on MuJoCo C at ``frequencies``; its score is the worst RMS body error
+    (infinite for a fall)."""
+
+    def validate(iteration: int, params) -> dict:
         values = tuned_values(space, params, base)
-        runs = shake(simulate, frequencies, cfg.validation_duration, space.gains(params, base))
+        runs = shake(simulate, frequencies, duration, space.gains(params, base))
         metrics = {f: r.metrics for f, r in runs.items()}
         errors = [np.inf if m["fell"] else m["rms_body_error_rad"] for m in metrics.values()]
-        rows.append(
-            {"iteration": it, "score": float(np.max(errors)), "gains": values, "runs": metrics}
-        )
-    return rows
+        return {"score": float(np.max(errors)), "gains": values, "runs": metrics}
+
+    return validate
 
 
 def plot_validation(history, rows, kept: int, path: Path, dpi: int):
@@ -250,12 +245,7 @@ def run(cfg, out_dir: Path) -> dict:
             f"{list(cfg.validation_frequencies)}, {list(cfg.heldout_frequencies)}"
         )
     seen = set(frequencies) | (set(checked) if cfg.validation_duration > 0 else set())
-    if seen & {float(f) for f in cfg.heldout_frequencies}:
-        log.warning(
-            "held-out frequencies %s are also training or validation frequencies: the "
-            "held-out measure is then not independent",
-            sorted(seen & set(cfg.heldout_frequencies)),
-        )
+    warn_unless_held_out(seen, {float(f) for f in cfg.heldout_frequencies}, "frequencies")
     model = load_valkyrie()
     loss, p0, base = shaking_loss(tuning_physics(model), space, problem, shaking)
 
@@ -264,19 +254,23 @@ def run(cfg, out_dir: Path) -> dict:
     fig.savefig(out_dir / "loss_curve.png", dpi=cfg.dpi)
     config = body_shaking_config(problem.hierarchy, pinv_rtol=problem.pinv_rtol)
     simulate = shaking_simulator(model, config, shaking)
+    validate = None
     if cfg.validation_duration > 0:
-        rows = validate(simulate, checked, space, base, result.history, cfg)
-        kept = min(rows, key=lambda r: (r["score"], r["iteration"]))
-        selection = {"by": "validation", "iteration": kept["iteration"], "rows": rows}
-        write_json(out_dir / "validation.json", selection)
+        validate = validator(simulate, checked, space, base, cfg.validation_duration)
+    selection = select_iterate(
+        result.history,
+        validate,
+        score=lambda row: row["score"],
+        every=cfg.validation_every,
+        progress="validation (MuJoCo C)",
+    )
+    if selection.rows:
+        write_json(out_dir / "validation.json", selection.as_json())
         plot_validation(
-            result.history, rows, kept["iteration"], out_dir / "validation.png", cfg.dpi
-        )
-        params = recorded_params(result.history[kept["iteration"]])
-    else:
-        best = min(result.history, key=lambda h: h["loss"])["iteration"]
-        selection = {"by": "training loss", "iteration": best}
-        params = result.params
+            result.history, selection.rows, selection.iteration, out_dir / "validation.png",
+            cfg.dpi,
+        )  # fmt: skip
+    params = recorded_params(result.history[selection.iteration])
     values = tuned_values(space, params, base)
     hand = tuned_values(space, space.init(base), base)
     save_gains(
@@ -285,8 +279,8 @@ def run(cfg, out_dir: Path) -> dict:
         {
             "hierarchy": problem.hierarchy,
             "hand_set": hand,
-            "kept_iteration": selection["iteration"],
-            "kept_by": selection["by"],
+            "kept_iteration": selection.iteration,
+            "kept_by": selection.by,
             "best_loss": result.best_loss,
             "initial_loss": result.history[0]["loss"],
         },
@@ -302,10 +296,10 @@ def run(cfg, out_dir: Path) -> dict:
         **result.summary(),
         "training_frequencies": list(frequencies),
         "validation_frequencies": list(checked) if cfg.validation_duration > 0 else [],
-        "kept": {k: v for k, v in selection.items() if k != "rows"},
+        "kept": {"by": selection.by, "iteration": selection.iteration},
         "validation": [
             {"iteration": r["iteration"], "score": r["score"], "runs": r["runs"]}
-            for r in selection.get("rows", [])
+            for r in selection.rows
         ],
         "hand_set_gains": hand,
         "tuned_gains": values,

@@ -65,6 +65,7 @@ from jaxloco.sweep import SweepSpec, paired_comparison, run_sweep, write_report
 from jaxloco.tuning.gains import GainSpace, tuned_values
 from jaxloco.tuning.optimize import TuneConfig, recorded_params, robust_value_and_grad, tune_in_dir
 from jaxloco.tuning.problems import PushLossParams, push_loss
+from jaxloco.tuning.selection import select_iterate, warn_unless_held_out
 from jaxloco.viz.tuning import plot_loss_curve
 
 log = logging.getLogger(__name__)
@@ -158,19 +159,19 @@ def sweep_counts(res) -> dict:
     return {"recovered": int(ok.sum()), "pushes": int(ok.size)}
 
 
-def validate(space, base, history, gait, wblc, physics, spec, out_dir: Path, every: int):
-    """Run ``spec`` on MuJoCo C for every ``every``-th iterate (and the last)."""
-    picks = sorted({*range(0, len(history), every), len(history) - 1})
-    rows = []
-    for it in picks:
-        params = recorded_params(history[it])
+def validator(space, base, gait, wblc, physics, spec, out_dir: Path):
+    """``validate(iteration, params) -> row`` for :func:`select_iterate`: the iterate's
+    controller runs the push sweep ``spec`` on MuJoCo C (``validation/iter_NN/``,
+    resumable)."""
+
+    def validate(iteration: int, params) -> dict:
         values, gait_values, g, w = controller_at(space, params, base, gait, wblc)
-        log.info("validation: iteration %d, %s %s", it, gait_values, values)
-        res = run_sweep(
-            spec, out_dir / "validation" / f"iter_{it:02d}", gait=g, physics=physics, wblc=w
-        )
-        rows.append({"iteration": it, **sweep_counts(res), "gains": values, "gait": gait_values})
-    return rows
+        log.info("validation: iteration %d, %s %s", iteration, gait_values, values)
+        run_dir = out_dir / "validation" / f"iter_{iteration:02d}"
+        res = run_sweep(spec, run_dir, gait=g, physics=physics, wblc=w)
+        return {**sweep_counts(res), "gains": values, "gait": gait_values}
+
+    return validate
 
 
 def plot_validation(history, rows, kept: int, path: Path, dpi: int):
@@ -242,12 +243,7 @@ def run(cfg, out_dir: Path) -> dict:
     pushes = training_pushes(cfg)
     seen = {(round(p[1] % 360, 6), round(problem.phase, 6)) for p in cfg.pushes}
     seen |= _push_keys(validation) if cfg.validate else set()
-    if seen & _push_keys(heldout):
-        log.warning(
-            "held-out (direction, phase) pairs %s are also training or validation pushes: "
-            "the held-out measure is then not independent",
-            sorted(seen & _push_keys(heldout)),
-        )
+    warn_unless_held_out(seen, _push_keys(heldout), "(direction, phase) pairs")
     # Tuning in the precision asked for, for these statements only.
     with jax.enable_x64(bool(cfg.float64)):
         wblc = walking_config(pinv_rtol=cfg.pinv_rtol, whiten_tasks=cfg.whiten_tasks)
@@ -277,28 +273,21 @@ def run(cfg, out_dir: Path) -> dict:
 
     # Sweeps run in float32, as push-sweep does.
     with jax.enable_x64(False):
+        validate = None
         if cfg.validate:
-            rows = validate(
-                space,
-                base,
-                result.history,
-                gait,
-                wblc,
-                physics,
-                validation,
-                out_dir,
-                cfg.validation_every,
-            )
-            kept = max(rows, key=lambda r: (r["recovered"], -r["iteration"]))
-            selection = {"by": "validation", "iteration": kept["iteration"], "rows": rows}
-            write_json(out_dir / "validation.json", selection)
+            validate = validator(space, base, gait, wblc, physics, validation, out_dir)
+        # The most pushes recovered is kept (the earlier iterate on ties).
+        selection = select_iterate(
+            result.history, validate, score=lambda row: -row["recovered"],
+            every=cfg.validation_every,
+        )  # fmt: skip
+        if selection.rows:
+            write_json(out_dir / "validation.json", selection.as_json())
             plot_validation(
-                result.history, rows, kept["iteration"], out_dir / "validation.png", cfg.dpi
-            )
-        else:
-            best = min(result.history, key=lambda h: h["loss"])["iteration"]
-            selection = {"by": "training loss", "iteration": best}
-        params = recorded_params(result.history[selection["iteration"]])
+                result.history, selection.rows, selection.iteration,
+                out_dir / "validation.png", cfg.dpi,
+            )  # fmt: skip
+        params = recorded_params(result.history[selection.iteration])
         values, gait_values, tuned_gait, tuned_wblc = controller_at(space, params, base, gait, wblc)
         hand = tuned_values(space, space.init(base), base)
         hand_gait = {k: getattr(gait, k) for k in gait_values}
@@ -309,8 +298,8 @@ def run(cfg, out_dir: Path) -> dict:
                 "problem": "push recovery while walking",
                 "hand_set": hand,
                 "hand_set_gait": hand_gait,
-                "kept_iteration": selection["iteration"],
-                "kept_by": selection["by"],
+                "kept_iteration": selection.iteration,
+                "kept_by": selection.by,
                 "best_loss": result.best_loss,
                 "initial_loss": result.history[0]["loss"],
             },
@@ -342,10 +331,10 @@ def run(cfg, out_dir: Path) -> dict:
         summary = {
             "config": OmegaConf.to_container(OmegaConf.structured(cfg)),
             **result.summary(),
-            "kept": {k: v for k, v in selection.items() if k != "rows"},
+            "kept": {"by": selection.by, "iteration": selection.iteration},
             "validation": [
                 {k: r[k] for k in ("iteration", "recovered", "pushes", "gait")}
-                for r in selection.get("rows", [])
+                for r in selection.rows
             ],
             "hand_set": {"gains": hand, "gait": hand_gait},
             "tuned": {"gains": values, "gait": gait_values},

@@ -24,6 +24,15 @@ os.environ["JAXLOCO_CACHE_DIR"] = os.environ["JAXLOCO_TEST_CACHE_DIR"]  # in-pro
 enable_compilation_cache(os.environ["JAXLOCO_TEST_CACHE_DIR"])
 
 
+@pytest.fixture(scope="session")
+def installed_jaxloco(tmp_path_factory):
+    """The project's wheel installed into a temporary folder (its ``sys.path`` entry): the
+    package as a user's ``pip install .`` has it, away from the checkout."""
+    from cli_helpers import install_wheel
+
+    return install_wheel(tmp_path_factory.mktemp("wheel"))
+
+
 def pytest_addoption(parser):
     parser.addoption("--runslow", action="store_true", help="also run tests marked slow")
     parser.addoption(

@@ -133,6 +133,18 @@ def test_jacobians_and_jdot_qdot_match_mujoco(name, model, sites, seed, smooth_f
     np.testing.assert_allclose(dense, mjx.full_m(mx, dx), atol=1e-10)
 
 
+def test_the_engines_terms_serve_only_a_controller_of_the_simulated_robot():
+    from jaxloco.dynamics.engine_terms import check_same_dynamics
+
+    model = load_valkyrie()
+    mx = mjx.put_model(model)
+    check_same_dynamics(mx, model)
+    heavier = load_valkyrie()
+    heavier.body_mass[model.body("pelvis").id] += 5.0
+    with pytest.raises(ValueError, match="body_mass differs"):
+        check_same_dynamics(mx, heavier)
+
+
 def test_the_split_step_is_mj_step_and_the_controller_sees_the_state_it_acts_on():
     """``run_closed_loop(engine=True)`` (``mj_step1``, controller, ``mj_step2``) moves the
     robot exactly as ``mj_step`` does, and the terms it hands the controller are the ones
@@ -401,3 +413,52 @@ def test_se3_identities():
     np.testing.assert_allclose(
         se3.ad_apply(twist, screw), -np.asarray(se3.ad_apply(screw, twist)), atol=1e-14
     )
+
+
+BOX_ON_A_FLOOR = """
+<mujoco>
+  <option timestep="0.002"/>
+  <worldbody>
+    <geom type="plane" size="2 2 0.1"/>
+    <body pos="0 0 0.12">
+      <freejoint/>
+      <geom type="box" size="0.1 0.08 0.05" mass="2"/>
+      <body pos="0.1 0 0.05">
+        <joint name="arm" type="hinge" axis="0 1 0"/>
+        <geom type="capsule" fromto="0 0 0 0.2 0 0" size="0.02" mass="0.3"/>
+      </body>
+    </body>
+  </worldbody>
+  <actuator><motor joint="arm"/></actuator>
+</mujoco>
+"""
+
+
+def test_mjx_step_in_two_halves_is_mjx_step(integrator="Euler"):
+    """The MJX loop's split step (position and velocity stages, then the controls, then the
+    rest) is ``mjx.step``, contacts included (Euler, every model's integrator here; the
+    others differ only in which of MJX's integrators the second half calls)."""
+    from jaxloco.sim.mjx_loop import step_first_half, step_second_half
+
+    model = mujoco.MjModel.from_xml_string(
+        BOX_ON_A_FLOOR.replace('timestep="0.002"', f'timestep="0.002" integrator="{integrator}"')
+    )
+    mx = mjx.put_model(model)
+    data = mujoco.MjData(model)
+    data.qvel[:] = [0.3, -0.2, 0.0, 0.5, 0.1, -0.4, 2.0]
+    d0 = mjx.put_data(model, data)
+    u = jnp.asarray([0.7])
+
+    @jax.jit
+    def both(d):
+        whole = mjx.step(mx, d.replace(ctrl=u))
+        halves = step_second_half(mx, step_first_half(mx, d).replace(ctrl=u))
+        return whole, halves
+
+    d = d0
+    for _ in range(20):
+        whole, halves = both(d)
+        np.testing.assert_array_equal(halves.qpos, whole.qpos)
+        np.testing.assert_array_equal(halves.qvel, whole.qvel)
+        d = whole
+    assert int(whole._impl.ncon) > 0  # the box rests on the floor: constraints were solved

@@ -44,7 +44,8 @@ def test_cli_rejects_unknown_experiment():
         cli.main(["nope"])
 
 
-def test_phase_portrait_ci_sized(tmp_path):
+def test_phase_portrait_ci_sized(tmp_path, installed_jaxloco):
+    """From the installed wheel, away from the checkout, as a user runs it."""
     proc = run_cli(
         [
             "phase-portrait",
@@ -55,6 +56,7 @@ def test_phase_portrait_ci_sized(tmp_path):
             "dpi=60",
         ],
         tmp_path,
+        installed=installed_jaxloco,
     )
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = tmp_path / "run"

@@ -154,12 +154,13 @@ CI_SEARCH = [
 ]
 
 
-def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path):
-    """`jaxloco push-sweep` with a CI-sized search: 2 rounds of up to 2 replicas, 1 needed
-    (20 N s is recovered, as in the CI sweep, by the first replica, so the second is not
-    run and the second round tests 30 N s); the report has every number and both plots;
-    the same command again runs nothing and reports the same."""
-    proc = run_cli(["push-sweep", *CI_SEARCH], tmp_path, timeout=900)
+def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path, installed_jaxloco):
+    """`jaxloco push-sweep` with a CI-sized search, from the installed wheel away from the
+    checkout: 2 rounds of up to 2 replicas, 1 needed (20 N s is recovered, as in the CI
+    sweep, by the first replica, so the second is not run and the second round tests
+    30 N s); the report has every number and both plots; the same command again runs
+    nothing and reports the same."""
+    proc = run_cli(["push-sweep", *CI_SEARCH], tmp_path, timeout=900, installed=installed_jaxloco)
     assert proc.returncode == 0, proc.stderr[-3000:]
     run = tmp_path / "run"
     summary = json.loads((run / "summary.json").read_text())
@@ -173,7 +174,7 @@ def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path):
     manifest = json.loads((run / "round_00" / "manifest.json").read_text())
     assert len(manifest["runs"]) == 1 and manifest["limit_search"]["rounds"] == 2
     assert sorted(p.name for p in (run / "walks").iterdir()) == ["1.0_0.0_1.npz"]
-    again = run_cli(["push-sweep", *CI_SEARCH], tmp_path, timeout=900)
+    again = run_cli(["push-sweep", *CI_SEARCH], tmp_path, timeout=900, installed=installed_jaxloco)
     assert again.returncode == 0, again.stderr[-3000:]
     manifest = json.loads((run / "round_01" / "manifest.json").read_text())
     assert len(manifest["runs"]) == 1  # nothing ran twice

@@ -15,6 +15,7 @@ from scipy.integrate import solve_ivp
 from scipy.spatial.transform import Rotation, Slerp
 
 from jaxloco.dynamics import se3
+from jaxloco.dynamics.engine_terms import engine_terms
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie
 from jaxloco.learning.loading import load_planner
 from jaxloco.locomotion import (
@@ -520,20 +521,20 @@ def test_mjx_and_mujoco_c_agree_through_liftoff(walker):
     steps = 1300
     physics = mjx_loop.physics_model(model, mjx_loop.PhysicsParams())
     q0 = keyframe_qpos(model, "walk")
-    cstate = jax.jit(WalkingController.init)(ctrl, jnp.asarray(q0))
     pushes = PushArrays.none()
     mx = mjx.put_model(physics)
-    state = jax.jit(mjx_loop.init_loop_state)(mx, q0, cstate)  # eager mjx.forward: ~400 compiles
+    data = mujoco.MjData(physics)
+    data.qpos[:] = q0
+    mujoco.mj_forward(physics, data)
+    cstate = jax.jit(WalkingController.init)(ctrl, jnp.asarray(q0), engine=engine_terms(data))
+    state = mjx_loop.loop_state_from_c(mx, physics, data, cstate)  # nothing to compile
     roll = jax.jit(lambda s: mjx_loop.rollout(mx, ctrl.step, s, pushes, 1, steps, 100))
     final, logs = roll(state)
     assert not bool(final.fell)
 
-    data = mujoco.MjData(physics)
-    data.qpos[:] = q0
-    mujoco.mj_forward(physics, data)
     from jaxloco.sim import run_closed_loop
 
-    # On C the controller reads MuJoCo's own terms of each state; on MJX it computes them.
+    # Each backend hands the controller its own engine's terms of each state.
     log, _ = run_closed_loop(physics, data, jax.jit(ctrl.step), cstate, steps, engine=True)
     # MJX logs the controller's view of the last tick of every 100.
     c_com = log.outputs.com[99::100]

@@ -2,12 +2,13 @@
 carries the assets and the experiments, so a non-editable install loads the model and the
 shipped policy and its ``jaxloco`` command lists and runs the experiments."""
 
-import os
 import subprocess
 import sys
 import tomllib
 import zipfile
 from pathlib import Path
+
+from cli_helpers import installed_env
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -24,14 +25,12 @@ def test_every_subpackage_is_listed():
     assert found | {"jaxloco.assets", "jaxloco.experiments"} == listed
 
 
-def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
-    subprocess.run(
-        [sys.executable, "-m", "pip", "wheel", "--quiet", "--no-deps", "-w", str(tmp_path), "."],
-        cwd=ROOT,
-        check=True,
-        timeout=600,
-    )
-    (wheel,) = tmp_path.glob("jaxloco-*.whl")
+def test_a_wheel_install_loads_the_packaged_assets(installed_jaxloco, tmp_path):
+    """The wheel carries the assets and the experiments; installed away from the checkout,
+    it loads the model and the shipped policy, and its command lists the experiments and
+    composes their configs (the CI-sized phase portrait and main job run it for real:
+    ``test_experiments.py``, ``test_limits.py``)."""
+    (wheel,) = installed_jaxloco.parent.glob("jaxloco-*.whl")
     names = set(zipfile.ZipFile(wheel).namelist())
     for asset in (
         "jaxloco/assets/valkyrie/valkyrie.xml",
@@ -44,35 +43,13 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
         "jaxloco/experiments/walk_steer.py",
     ):
         assert asset in names
-    target = tmp_path / "site"
-    subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "pip",
-            "install",
-            "--quiet",
-            "--no-deps",
-            "--target",
-            str(target),
-            str(wheel),
-        ],
-        check=True,
-        timeout=600,
-    )
     code = (
         "from jaxloco.runtime import assets_dir\n"
         "from jaxloco.dynamics.model import load_valkyrie\n"
         "from jaxloco.learning import load_planner\n"
         "print('RESULT', assets_dir(), load_valkyrie().nv, type(load_planner()).__name__)\n"
     )
-    # The installed package only: no checkout's folders named by the environment.
-    env = {
-        k: v
-        for k, v in os.environ.items()
-        if k not in ("JAXLOCO_ASSETS_DIR", "JAXLOCO_EXPERIMENTS_DIR")
-    }
-    env["PYTHONPATH"] = str(target)
+    env = installed_env(installed_jaxloco)
 
     def installed(*args):
         out = subprocess.run(
@@ -89,7 +66,7 @@ def test_a_wheel_install_loads_the_packaged_assets(tmp_path):
     out = installed(code)
     (line,) = [x for x in out.splitlines() if x.startswith("RESULT ")]
     _, assets, nv, planner = line.split()
-    assert Path(assets).resolve() == (target / "jaxloco" / "assets").resolve()
+    assert Path(assets).resolve() == (installed_jaxloco / "jaxloco" / "assets").resolve()
     assert nv == "34"
     assert planner == "FallbackPlanner"  # its two policies found beside it in the wheel
 

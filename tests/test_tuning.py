@@ -277,7 +277,8 @@ def test_closed_loop_gradients_match_finite_differences_and_tuning_lowers_the_lo
     model = tuning_physics(load_valkyrie())
     space = GainSpace(("body_ori.kp", "body_ori.kd"))
     # Start mid-swing (no ramp) so the body error is large from the first tick.
-    problem = ShakingLossParams(horizon=0.06, segment=20, slip_weight=100.0)
+    # One segment: a plain scan, as forward mode wants.
+    problem = ShakingLossParams(horizon=0.06, segment=60, slip_weight=100.0)
     loss, p0, _ = shaking_loss(model, space, problem, ShakingParams(ramp=0.0, frequency_hz=2.0))
     pushes = PushArrays.none()
     fn = lambda p: loss(p, pushes)  # noqa: E731
@@ -563,3 +564,43 @@ def test_tune_push_cli_end_to_end(tmp_path):
     assert history[1]["params"]["gait.replan_threshold"] != [0.0]
     for name in ("loss_curve.png", "heldout.png", "history.json", "validation.png"):
         assert (run / name).stat().st_size > 0
+
+
+def test_the_kept_iterate_is_the_best_validated_one_or_the_lowest_loss(caplog):
+    from jaxloco.tuning.selection import (
+        BY_LOSS,
+        BY_VALIDATION,
+        select_iterate,
+        validation_iterates,
+        warn_unless_held_out,
+    )
+
+    history = [
+        {"iteration": i, "loss": loss, "params": {"k": [float(i)]}}
+        for i, loss in enumerate([5.0, 3.0, 1.0, 2.0, 1.0, 4.0, 6.0])
+    ]
+    assert validation_iterates(7, 3) == [0, 3, 6]
+    assert validation_iterates(1, 5) == [0]
+    by_loss = select_iterate(history)
+    assert (by_loss.by, by_loss.iteration, by_loss.rows) == (BY_LOSS, 2, ())  # earlier tie
+    seen = []
+
+    def validate(iteration, params):
+        seen.append((iteration, float(params["k"][0])))
+        return {"fell": iteration == 6, "error": {0: 0.5, 3: 0.2, 6: 0.1}[iteration]}
+
+    kept = select_iterate(
+        history, validate, score=lambda r: np.inf if r["fell"] else r["error"], every=3
+    )
+    assert seen == [(0, 0.0), (3, 3.0), (6, 6.0)]  # each iterate's own parameters
+    assert (kept.by, kept.iteration) == (BY_VALIDATION, 3)  # 6 fell
+    assert [r["iteration"] for r in kept.rows] == [0, 3, 6]
+    assert kept.as_json()["rows"][1] == {"iteration": 3, "fell": False, "error": 0.2}
+    hand_set = select_iterate(history, lambda i, p: {"s": 1.0}, score=lambda r: r["s"])
+    assert hand_set.iteration == 0  # nothing beats the hand-set parameters
+    with pytest.raises(ValueError, match="needs a score"):
+        select_iterate(history, validate)
+    with pytest.raises(ValueError, match="every must be >= 1"):
+        validation_iterates(3, 0)
+    assert warn_unless_held_out({1.0, 2.0}, {2.0, 3.0}, "frequencies") == {2.0}
+    assert "held-out frequencies [2.0]" in caplog.text

@@ -54,6 +54,7 @@ from jaxloco.control.tasks import (
     hold_reference,
     hold_reference_from_data,
     snapshot,
+    snapshot_of_data,
     task_index,
     task_terms,
 )
@@ -279,12 +280,17 @@ class WBLC:
         """``{task name: PDGains}``: the config's default gains as traced data."""
         return default_gains(self.config.tasks)
 
-    def snapshot(self, qpos, qvel, engine: EngineTerms | None = None) -> RobotSnapshot:
+    def snapshot(self, qpos, qvel, engine: EngineTerms | mjx.Data | None = None) -> RobotSnapshot:
         """The dynamics of ``(qpos, qvel)``: computed by MJX, or read from ``engine``, what
-        MuJoCo C computed for this same state (:mod:`~jaxloco.dynamics.engine_terms`)."""
-        if engine is not None:
+        the simulator computed for this same state: MuJoCo C's
+        :class:`~jaxloco.dynamics.engine_terms.EngineTerms`, or MJX's data after its
+        position and velocity stages (:func:`jaxloco.sim.mjx_loop.step_first_half`). The
+        simulated model must be this controller's (same bodies, masses, inertias)."""
+        if engine is None:
+            return snapshot(self.mx, qpos, qvel)
+        if isinstance(engine, EngineTerms):
             return engine_snapshot(self.mx, engine)
-        return snapshot(self.mx, qpos, qvel)
+        return snapshot_of_data(self.mx, engine, mjx.full_m(self.mx, engine))
 
     def hold_references(self, qpos, qvel=None) -> dict[str, TaskReference]:
         """References that hold every task where it is at ``qpos`` (zero velocity)."""

@@ -78,6 +78,40 @@ def bind_engine_terms(batch) -> EngineTerms:
     return EngineTerms(*(batch.bind(name) for name in ENGINE_FIELDS))
 
 
+SAME_DYNAMICS_FIELDS = (
+    "body_parentid",
+    "jnt_type",
+    "body_mass",
+    "body_inertia",
+    "body_ipos",
+    "body_iquat",
+    "body_pos",
+    "body_quat",
+    "jnt_pos",
+    "jnt_axis",
+    "dof_armature",
+    "site_bodyid",
+    "site_pos",
+    "site_quat",
+)
+"""Model fields that decide the terms a controller reads: they must agree between the
+controller's model and the simulated one."""
+
+
+def check_same_dynamics(mx: mjx.Model, model: mujoco.MjModel, rtol: float = 1e-6) -> None:
+    """Raise ``ValueError`` unless the simulated ``model`` has the kinematics and inertias
+    of the controller's ``mx`` (the engine's terms then are the controller's own); a
+    controller of another model (a mass error on purpose, say) must compute its own."""
+    for name in SAME_DYNAMICS_FIELDS:
+        ours, theirs = np.asarray(getattr(mx, name)), np.asarray(getattr(model, name))
+        if ours.shape != theirs.shape or not np.allclose(ours, theirs, rtol=rtol, atol=1e-9):
+            raise ValueError(
+                f"the simulated model's {name} differs from the controller's: the engine's "
+                "terms would be another robot's; let the controller compute its own "
+                "(simulate_walk(engine=False), or a controller that ignores engine=)"
+            )
+
+
 def _dense_index(rownnz, rowadr, colind) -> np.ndarray:
     """``(nv, nv)`` index into ``M`` of every entry of the full matrix (-1: zero)."""
     nv = len(rownnz)

@@ -14,6 +14,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
+from mujoco import mjx
 
 from jaxloco.control.force_qp import ForceQPState
 from jaxloco.control.presets import foot_task, walking_config
@@ -110,13 +111,20 @@ class WalkingController:
         return WalkingState(g, self.wblc.initial_qp_state(qpos.dtype))
 
     def step(
-        self, t, qpos, qvel, state: WalkingState, gains=None, engine: EngineTerms | None = None
+        self,
+        t,
+        qpos,
+        qvel,
+        state: WalkingState,
+        gains=None,
+        engine: EngineTerms | mjx.Data | None = None,
     ) -> tuple[jax.Array, WalkingState, WalkingLog]:
         """One control tick: ``(torques, new state, log)``, the log a :class:`WalkingLog`.
 
-        ``engine``: what MuJoCo C computed for this same state (``qpos``, ``qvel``), read
-        instead of computing it with MJX (:mod:`~jaxloco.dynamics.engine_terms`): the same
-        torques to float round-off, a smaller program and a shorter tick."""
+        ``engine``: what the simulator computed for this same state (``qpos``, ``qvel``),
+        read instead of computing it again (:meth:`WBLC.snapshot
+        <jaxloco.control.wblc.WBLC.snapshot>`): the same torques to float round-off, a
+        smaller program and a shorter tick."""
         wblc, params, psp = self.wblc, self.gait_params, self.psp
         with jax.named_scope("wblc.snapshot"):
             snap = wblc.snapshot(qpos, qvel, engine)

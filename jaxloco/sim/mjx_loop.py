@@ -144,10 +144,60 @@ class RolloutLog:
 
 
 def init_loop_state(mx: mjx.Model, qpos, controller_state) -> LoopState:
+    """The loop state of a robot at rest at ``qpos``, by ``mjx.forward`` (traced: inside a
+    program it is part of that program; :func:`loop_state_from_c` builds it without)."""
     d = mjx.make_data(mx).replace(qpos=jnp.asarray(qpos))
     d = mjx.forward(mx, d)
     dtype = d.qpos.dtype
     return LoopState(d, controller_state, jnp.array(False), jnp.asarray(jnp.inf, dtype))
+
+
+def mjx_data_from_c(mx: mjx.Model, model: mujoco.MjModel, data: mujoco.MjData) -> mjx.Data:
+    """MuJoCo C's ``data`` (after ``mj_forward``) as MJX data with the dtypes ``mjx.step``
+    returns, so it can start a ``lax.scan`` of steps (``put_data`` gives some integer
+    fields, contact ids, another width under float64)."""
+    types = jax.eval_shape(lambda: mjx.make_data(mx))  # step's own types; tracing is free
+    return jax.tree.map(lambda x, t: jnp.asarray(x, t.dtype), mjx.put_data(model, data), types)
+
+
+def loop_state_from_c(
+    mx: mjx.Model, model: mujoco.MjModel, data: mujoco.MjData, controller_state
+) -> LoopState:
+    """The loop state of MuJoCo C's ``data`` (after ``mj_forward``), not fallen: no
+    program to trace or compile (``mjx.forward`` in a gradient program took ~9 s of its
+    tracing and its share of the compile)."""
+    d = mjx_data_from_c(mx, model, data)
+    return LoopState(d, controller_state, jnp.array(False), jnp.asarray(jnp.inf, d.qpos.dtype))
+
+
+def step_first_half(mx: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """``mjx.step``'s position and velocity stages (MuJoCo's ``mj_step1``): everything
+    that depends on the state alone, before the controls are known."""
+    d = mjx.fwd_position(mx, d)
+    d = mjx.sensor_pos(mx, d)
+    d = mjx.fwd_velocity(mx, d)
+    return mjx.sensor_vel(mx, d)
+
+
+def step_second_half(mx: mjx.Model, d: mjx.Data) -> mjx.Data:
+    """The rest of ``mjx.step`` after :func:`step_first_half` and the controls (MuJoCo's
+    ``mj_step2``): actuation, acceleration, constraints, integration. The two halves are
+    ``mjx.step``'s own stages in its order (tested against it)."""
+    d = mjx.fwd_actuation(mx, d)
+    d = mjx.fwd_acceleration(mx, d)
+    if d._impl.efc_J.size == 0:
+        d = d.replace(qacc=d.qacc_smooth)
+    else:
+        d = mjx.solve(mx, d)
+        d = mjx.sensor_acc(mx, d)
+    integrator = mx.opt.integrator
+    if integrator == mjx.IntegratorType.EULER:
+        return mjx.euler(mx, d)
+    if integrator == mjx.IntegratorType.RK4:
+        return mjx.rungekutta4(mx, d)
+    if integrator == mjx.IntegratorType.IMPLICITFAST:
+        return mjx.implicit(mx, d)
+    raise NotImplementedError(f"MJX has no integrator {integrator}")
 
 
 def closed_loop_step(
@@ -158,14 +208,17 @@ def closed_loop_step(
     push_body: int,
     fall_height: float = 0.7,
 ):
-    """One tick: ``controller(t, qpos, qvel, cstate) -> (torques, cstate, log)``, the
-    :class:`~jaxloco.sim.push.PushArrays` ``pushes`` (world frame, any shape) on
-    ``push_body``, then ``mjx.step``. Returns ``(state, LoopTick)``."""
-    d = state.data
-    torques, cstate, log = controller(d.time, d.qpos, d.qvel, state.controller)
+    """One tick: ``controller(t, qpos, qvel, cstate, engine=d) -> (torques, cstate, log)``,
+    the :class:`~jaxloco.sim.push.PushArrays` ``pushes`` (world frame, any shape) on
+    ``push_body``, then ``mjx.step``, split in its two halves: the controller gets ``d``,
+    the state's ``mjx.Data`` after :func:`step_first_half` (the engine's own kinematics,
+    inertias and bias forces, which a WBLC snapshot reads instead of computing them a
+    second time). Returns ``(state, LoopTick)``."""
+    d = step_first_half(mx, state.data)
+    torques, cstate, log = controller(d.time, d.qpos, d.qvel, state.controller, engine=d)
     force = jnp.sum(push_force(pushes, d.time).reshape(-1, 3), axis=0)
     xfrc = jnp.zeros_like(d.xfrc_applied).at[push_body, :3].set(force.astype(d.qpos.dtype))
-    new = mjx.step(mx, d.replace(ctrl=torques.astype(d.qpos.dtype), xfrc_applied=xfrc))
+    new = step_second_half(mx, d.replace(ctrl=torques.astype(d.qpos.dtype), xfrc_applied=xfrc))
     finite = jnp.all(jnp.isfinite(new.qpos)) & jnp.all(jnp.isfinite(new.qvel))
     fell_now = (~finite) | (new.qpos[2] < fall_height)
     fell = state.fell | fell_now

@@ -14,7 +14,7 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 
-from jaxloco.dynamics.engine_terms import engine_terms
+from jaxloco.dynamics.engine_terms import check_same_dynamics, engine_terms
 from jaxloco.locomotion.walking import WalkingController
 from jaxloco.locomotion.walking_log import WalkingLog
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
@@ -61,11 +61,14 @@ def simulate_walk(
     data)``: opens a view of the run (e.g. :func:`.viewer.open_viewer`) and returns what
     is called after every physics step; its ``close()``, if it has one, runs at the end.
     ``engine``: the controller reads the dynamics MuJoCo C computed for each state
-    (:func:`~.mujoco_c.run_closed_loop`'s ``engine``) instead of computing them with MJX."""
+    (:func:`~.mujoco_c.run_closed_loop`'s ``engine``) instead of computing them with MJX;
+    ``ctrl`` must then be a controller of ``model`` (checked)."""
     fall_height = ctrl.robot.fall_height if fall_height is None else fall_height
     if duration <= 0:
         raise ValueError(f"duration must be > 0; got {duration}")
     sim_model = physics_model(model, physics) if physics is not None else model
+    if engine:
+        check_same_dynamics(ctrl.wblc.mx, sim_model)
     data = mujoco.MjData(sim_model)
     data.qpos[:] = ctrl.robot.keyframe_qpos(model)
     mujoco.mj_forward(sim_model, data)

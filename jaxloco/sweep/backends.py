@@ -26,10 +26,10 @@ from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import batch as mj_batch
 from mujoco import mjx
 
-from jaxloco.dynamics.engine_terms import bind_engine_terms
+from jaxloco.dynamics.engine_terms import bind_engine_terms, check_same_dynamics
 from jaxloco.locomotion.walking import WalkingController, WalkingState
 from jaxloco.runtime import single_thread_compiler_options
-from jaxloco.sim.mjx_loop import LoopState, closed_loop_step
+from jaxloco.sim.mjx_loop import LoopState, closed_loop_step, mjx_data_from_c
 from jaxloco.sim.push import PushArrays, push_force
 from jaxloco.sweep.outcome import Outcome, init_outcome, mark_fallen, update_outcome
 from jaxloco.sweep.starts import STATE_SPEC
@@ -106,11 +106,7 @@ def mjx_loop_states(sim_model: mujoco.MjModel, starts: ChunkStarts, mx=None) -> 
     for row in starts.physics:
         mujoco.mj_setState(m, d, row, STATE_SPEC)
         mujoco.mj_forward(m, d)
-        datas.append(mjx.put_data(m, d))
-    # put_data and step disagree on some integer dtypes (contact ids, int32 vs int64 under
-    # x64): give the data the types step returns, so it can be a scan carry.
-    types = jax.eval_shape(lambda x: mjx.step(mx, x), datas[0])
-    datas = [jax.tree.map(lambda x, t: jnp.asarray(x, t.dtype), x, types) for x in datas]
+        datas.append(mjx_data_from_c(mx, m, d))
     data = jax.tree.map(lambda *xs: jnp.stack(xs), *datas)
     n = len(starts.times)
     return LoopState(
@@ -139,6 +135,7 @@ class CBatchBackend:
         self.fall_height = fall_height
         self.nthread = nthread or os.cpu_count() or 1
 
+        check_same_dynamics(ctrl.wblc.mx, sim_model)  # the controller reads the engine's terms
         self._ctrl = ctrl
         self._ticks = {}  # one compiled tick per layout of the controller state
         # A chunk's set-up and read-out, each one program (op by op, vmapped packing was
@@ -241,6 +238,7 @@ class MJXBackend:
         devices=None,
     ):
         self.model = sim_model
+        check_same_dynamics(ctrl.wblc.mx, sim_model)  # the controller reads the engine's terms
         self.mx = mjx.put_model(sim_model)
         self.devices = list(devices) if devices is not None else jax.devices()
         self.horizon_steps = horizon_steps

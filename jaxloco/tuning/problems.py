@@ -31,9 +31,10 @@ from jaxloco import validation as v
 from jaxloco.control.presets import body_shaking_config
 from jaxloco.control.shaking import ShakingParams, shaking_reference
 from jaxloco.control.wblc import make_wblc
+from jaxloco.dynamics.engine_terms import check_same_dynamics
 from jaxloco.dynamics.model import keyframe_qpos
 from jaxloco.locomotion.gait import com_reference
-from jaxloco.sim.mjx_loop import init_loop_state
+from jaxloco.sim.mjx_loop import loop_state_from_c
 from jaxloco.sim.push import PushArrays, body_index
 from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states
 from jaxloco.sweep.starts import snapshot_walk
@@ -120,13 +121,17 @@ def shaking_loss(
     check_differentiable(model)
     ctrl = make_wblc(model, body_shaking_config(params.hierarchy, pinv_rtol=params.pinv_rtol))
     mx = ctrl.mx
-    qpos0 = jnp.asarray(keyframe_qpos(model, "walk"))
-    refs0 = ctrl.hold_references_at(model, qpos0)  # MuJoCo C: no program to compile
-    # Jitted: op by op (eager), MJX's kinematics took ~40 s to build this on 2 CPU cores.
-    snap0 = jax.jit(ctrl.snapshot)(qpos0, jnp.zeros(model.nv))
-    com0 = snap0.com
+    data0 = mujoco.MjData(model)
+    data0.qpos[:] = keyframe_qpos(model, "walk")
+    mujoco.mj_forward(model, data0)
+    qpos0 = jnp.asarray(data0.qpos)
+    # From MuJoCo C: no program to compile (MJX's forward pass inside the loss was ~9 s of
+    # its tracing; op by op, MJX's kinematics took ~40 s on 2 CPU cores).
+    refs0 = ctrl.hold_references_at(model, qpos0)
+    state0 = loop_state_from_c(mx, model, data0, ctrl.initial_qp_state())
+    com0 = jnp.asarray(data0.subtree_com[0])
     points = jnp.asarray(ctrl.point_sites)
-    points0 = snap0.data.site_xpos[points, :2]
+    points0 = jnp.asarray(data0.site_xpos[np.asarray(ctrl.point_sites), :2])
     contact = jnp.ones(2)
     base = ctrl.default_gains()
     steps = horizon_steps(model, params)
@@ -138,10 +143,10 @@ def shaking_loss(
         dtype = jax.tree.leaves(gain_params)[0].dtype
         q0 = refs0["body_ori"].pos.astype(dtype)
 
-        def controller(t, qpos, qvel, prev, frequency):
+        def controller(t, qpos, qvel, prev, frequency, engine):
             quat, vel, acc = shaking_reference(shaking, q0, t, frequency)
             refs = {**refs0, "body_ori": refs0["body_ori"].replace(pos=quat, vel=vel, acc=acc)}
-            snap = ctrl.snapshot(qpos, qvel)
+            snap = ctrl.snapshot(qpos, qvel, engine)  # the physics' own terms of the state
             out = ctrl(qpos, qvel, refs, contact, gains=gains, previous=prev, snap=snap)
             err = out.diagnostics.task_errors["body_ori"]
             com = snap.com[:2]
@@ -155,11 +160,10 @@ def shaking_loss(
             }
             return out.torques, out.qp_state, costs
 
-        def one(push, frequency):
-            state = init_loop_state(mx, qpos0.astype(dtype), ctrl.initial_qp_state(dtype))
+        def one(push, frequency, state):
             final, costs = mean_costs(
                 mx,
-                lambda t, q, v, prev: controller(t, q, v, prev, frequency),
+                lambda t, q, v, prev, engine: controller(t, q, v, prev, frequency, engine),
                 state,
                 steps,
                 params.segment,
@@ -173,9 +177,17 @@ def shaking_loss(
             costs["fallen"] = fallen.astype(dtype)
             return costs
 
-        freqs = jnp.asarray(frequencies, dtype)
-        batch = jax.vmap(jax.vmap(one, (None, 0)), (0, None))(pushes, freqs)
-        costs = jax.tree.map(lambda v: jnp.mean(v, axis=(0, 1)), batch)
+        # One batch of every (push, frequency) pair, each rollout from its own copy of the
+        # start state: a scan whose carry starts batched is vmapped in one pass over the
+        # tick, where nested vmaps from an unbatched carry took several (~20 s of tracing).
+        n_push, n_freq = pushes.magnitude.shape[0], len(frequencies)
+        pairs_push = jax.tree.map(lambda x: jnp.repeat(x, n_freq, axis=0), pushes)
+        pairs_freq = jnp.tile(jnp.asarray(frequencies, dtype), n_push)
+        states = jax.tree.map(
+            lambda x: jnp.broadcast_to(_as_float(x, dtype), (n_push * n_freq, *x.shape)), state0
+        )
+        batch = jax.vmap(one)(pairs_push, pairs_freq, states)
+        costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), batch)
         loss = (
             params.track_weight * costs["track"]
             + params.effort_weight * costs["effort"]
@@ -311,6 +323,7 @@ def push_loss(
     """
     base = ctrl.wblc.default_gains()
     space.check(base)
+    check_same_dynamics(ctrl.wblc.mx, sim_model)  # the controller reads the engine's terms
     base_gait = dataclasses.asdict(ctrl.gait_params)
     snaps = snapshot_walk(
         sim_model, ctrl, jax.jit(ctrl.step), params.apex_speed, 0.0, True, params.push_step,
@@ -340,8 +353,8 @@ def push_loss(
         gait_values = space.gait_values(tuned, base_gait)
         dtype = state0.data.qpos.dtype
 
-        def controller(t, qpos, qvel, cstate):
-            torques, cstate, log = ctrl.step(t, qpos, qvel, cstate, gains=gains)
+        def controller(t, qpos, qvel, cstate, engine):
+            torques, cstate, log = ctrl.step(t, qpos, qvel, cstate, gains=gains, engine=engine)
             up = _pelvis_up(qpos[3:7])
             dcm = log.com[:2] + log.com_vel[:2] / omega
             if params.dcm_reference == "footstep":
@@ -358,13 +371,13 @@ def push_loss(
             }
             return torques, cstate, costs
 
-        def one(push):
-            gait = state0.controller.gait
+        def one(push, start):
+            gait = start.controller.gait
             overrides = gait.overrides.replace(
                 **{k: jnp.asarray(v, dtype) for k, v in gait_values.items()}
             )
             gait = gait.replace(overrides=overrides)
-            state = state0.replace(controller=state0.controller.replace(gait=gait))
+            state = start.replace(controller=start.controller.replace(gait=gait))
             world = push._replace(direction=heading + push.direction, start=t0 + push.start)
             final, costs = mean_costs(
                 mx, controller, state, steps, params.segment, world.astype(dtype), body,
@@ -380,7 +393,11 @@ def push_loss(
             costs["at_risk"] = jax.nn.sigmoid(excess)
             return costs
 
-        costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), jax.vmap(one)(pushes))
+        # Each rollout from its own copy of the start state (see the shaking problem).
+        states = jax.tree.map(
+            lambda x: jnp.broadcast_to(x, pushes.magnitude.shape[:1] + x.shape), state0
+        )
+        costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), jax.vmap(one)(pushes, states))
         loss = (
             params.risk_weight * costs["at_risk"]
             + params.dcm_weight * costs["dcm"]
@@ -391,6 +408,11 @@ def push_loss(
         return loss, costs
 
     return loss_fn, space.init(base), base
+
+
+def _as_float(x, dtype):
+    """``x`` in ``dtype`` if it is a floating-point array, else unchanged."""
+    return x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x
 
 
 def _touchdown_dcm_offset(gait, dcm, t, omega):

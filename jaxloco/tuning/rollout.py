@@ -12,7 +12,9 @@ segment's ticks when it gets there, so memory grows as ``steps / segment + segme
 states instead of ``steps`` full sets of intermediates, at the price of one extra forward
 pass (``segment`` near ``sqrt(steps)`` minimises it in principle). On CPU, though, XLA
 compiles the reverse pass of long segments far more slowly, so the tuning problems use
-``segment=1`` (``docs/tuning.md``).
+``segment=1`` (``docs/tuning.md``). ``segment == steps`` is a single plain scan: what
+forward-mode gradients want (they keep nothing for a backward pass, and nested scans are
+slower to trace).
 """
 
 from __future__ import annotations
@@ -60,7 +62,9 @@ def mean_costs(
     """Run ``steps`` ticks; return the final state and the time mean of every entry of the
     controller's ``log`` (scalars: the per-tick costs).
 
-    ``controller(t, qpos, qvel, cstate) -> (torques, cstate, costs)``. ``steps`` must be a
+    ``controller(t, qpos, qvel, cstate, engine=d) -> (torques, cstate, costs)``, ``d`` the
+    state's MJX data after its position and velocity stages (see
+    :func:`~jaxloco.sim.mjx_loop.closed_loop_step`). ``steps`` must be a
     multiple of ``segment``. Ticks after a fall add the frozen state's costs (the state
     stops changing; see :func:`closed_loop_step`).
     """
@@ -74,6 +78,13 @@ def mean_costs(
     def tick(s, _):
         s, record = closed_loop_step(mx, controller, s, pushes, push_body, fall_height)
         return s, record.controller
+
+    if segment == steps:
+        # One segment: one scan, nothing to checkpoint. (Forward mode needs no
+        # checkpoints; a nested scan's tangents cost JAX several passes over the tick to
+        # trace, ~40 s of the shaking problem's 2-parameter forward gradient.)
+        state, logs = jax.lax.scan(tick, state, None, length=steps)
+        return state, jax.tree.map(lambda v: jnp.sum(v, axis=0) / steps, logs)
 
     @jax.checkpoint
     def run_segment(s, _):
