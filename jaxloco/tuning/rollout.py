@@ -13,8 +13,7 @@ states instead of ``steps`` full sets of intermediates, at the price of one extr
 pass (``segment`` near ``sqrt(steps)`` minimises it in principle). On CPU, though, XLA
 compiles the reverse pass of long segments far more slowly, so the tuning problems use
 ``segment=1`` (``docs/tuning.md``). ``segment == steps`` is a single plain scan: what
-forward-mode gradients want (they keep nothing for a backward pass, and nested scans are
-slower to trace).
+forward-mode gradients want (they keep nothing for a backward pass).
 """
 
 from __future__ import annotations
@@ -80,9 +79,8 @@ def mean_costs(
         return s, record.controller
 
     if segment == steps:
-        # One segment: one scan, nothing to checkpoint. (Forward mode needs no
-        # checkpoints; a nested scan's tangents cost JAX several passes over the tick to
-        # trace, ~40 s of the shaking problem's 2-parameter forward gradient.)
+        # One segment: one scan, nothing to checkpoint (forward mode keeps nothing for a
+        # backward pass).
         state, logs = jax.lax.scan(tick, state, None, length=steps)
         return state, jax.tree.map(lambda v: jnp.sum(v, axis=0) / steps, logs)
 
