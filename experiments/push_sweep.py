@@ -37,6 +37,7 @@ from jaxloco.app import (
     launch,
     register,
     robot_default,
+    robot_force_qp_schema,
     robot_physics_schema,
     robot_setup,
     run_in_hydra,
@@ -90,8 +91,9 @@ class PushSweepConfig(RunConfig):
     """Simulation settings; the torque limit and solver iterations default to the robot's
     (Valkyrie: the paper's 500 N m bound, 2 and 4 iterations; the others: their own effort
     limits, MuJoCo's default solver)."""
-    force_qp: ForceQPSchema = field(default_factory=ForceQPSchema)
-    """The walking WBLC's contact-force QP (defaults: ``presets.CLOSED_LOOP_QP``), e.g.
+    force_qp: ForceQPSchema = field(default_factory=robot_force_qp_schema(ForceQPSchema))
+    """The walking WBLC's contact-force QP (defaults: ``presets.CLOSED_LOOP_QP``, its
+    friction pyramids the robot's: ``presets.robot_force_qp``), e.g.
     ``force_qp.iterations=200``."""
     backend: str = "c"
     """``c`` (MuJoCo C batch, the CPU default: measured faster here) or ``mjx`` (grid only)."""

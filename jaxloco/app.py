@@ -32,6 +32,7 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
+from jaxloco.control.presets import CLOSED_LOOP_QP, robot_force_qp
 from jaxloco.locomotion.gait_params import GaitParams
 from jaxloco.locomotion.walking import robot_gait
 from jaxloco.robots import RobotDescription, robot_by_name
@@ -50,7 +51,15 @@ class RunConfig:
     """Resolution of the figures written (dots per inch)."""
 
 
-ROBOT_DEFAULTS = ("torque_limit", "iterations", "ls_iterations", "fall_height", "impulse_high")
+ROBOT_DEFAULTS = (
+    "torque_limit",
+    "iterations",
+    "ls_iterations",
+    "fall_height",
+    "impulse_high",
+    "mu",
+    "mu_relaxed",
+)
 """The config values that default to the config's ``robot``'s (:func:`robot_default`)."""
 
 REFERENCE_IMPULSE_HIGH = 128.0
@@ -61,8 +70,10 @@ def robot_default(field: str) -> str:
     """A config value: the config's ``robot``'s default for ``field``, resolved when the
     config is read: the simulation's ``torque_limit``, solver ``iterations`` and
     ``ls_iterations`` (:class:`~jaxloco.robots.RobotDescription`), the ``fall_height`` of its
-    base, and ``impulse_high``, the limit search's top impulse (N s): 128 N s for Valkyrie,
-    the same velocity change (impulse / mass) for another robot, rounded up to 16 N s."""
+    base, ``impulse_high``, the limit search's top impulse (N s): 128 N s for Valkyrie,
+    the same velocity change (impulse / mass) for another robot, rounded up to 16 N s, and
+    the walking force QP's friction pyramids ``mu``, ``mu_relaxed``
+    (:func:`~jaxloco.control.presets.robot_force_qp` of ``CLOSED_LOOP_QP``)."""
     if field not in ROBOT_DEFAULTS:
         raise ValueError(f"robot_default: field must be one of {ROBOT_DEFAULTS}; got {field!r}")
     return "${jaxloco_robot:${robot}," + field + "}"
@@ -76,6 +87,8 @@ def _robot_value(name: str, field: str):
         return robot.solver_iterations[ROBOT_DEFAULTS.index(field) - 1]
     if field == "fall_height":
         return robot.fall_height
+    if field in ("mu", "mu_relaxed"):
+        return getattr(robot_force_qp(robot, CLOSED_LOOP_QP), field)
     if field == "impulse_high":
         if robot.length_scale == 1.0:  # the reference robot: the bracket as chosen
             return REFERENCE_IMPULSE_HIGH
@@ -100,6 +113,13 @@ def robot_physics_schema(schema: type):
     are the config's ``robot``'s defaults."""
     fields = ("torque_limit", "iterations", "ls_iterations")
     return lambda: schema(**{f: robot_default(f) for f in fields})
+
+
+def robot_force_qp_schema(schema: type):
+    """A default factory for an experiment's ``force_qp`` node (a ``config_schema`` of
+    :class:`~jaxloco.control.force_qp.ForceQPParams` with ``CLOSED_LOOP_QP``'s defaults)
+    whose friction pyramids are the config's ``robot``'s."""
+    return lambda: schema(**{f: robot_default(f) for f in ("mu", "mu_relaxed")})
 
 
 class RobotSetup(NamedTuple):

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from cli_helpers import run_cli
 
-from jaxloco.control.presets import walking_config
+from jaxloco.control.presets import CLOSED_LOOP_QP, body_shaking_config, walking_config
 from jaxloco.control.tasks import frame_quat, task_index
 from jaxloco.control.wblc import make_wblc
 from jaxloco.learning import load_planner
@@ -38,6 +38,7 @@ from jaxloco.robots import (
     effort_limits,
     robot_scale,
 )
+from jaxloco.robots.description import model_foot_friction
 from jaxloco.robots.h1 import H1
 from jaxloco.robots.model_source import package_root
 from jaxloco.runtime import assets_dir
@@ -377,6 +378,59 @@ def test_robot_defaults_of_the_experiment_configs():
         assert got == expected, robot
     with pytest.raises(ValueError, match="robot: one of"):
         _robot_value("nao", "fall_height")
+    for robot, (mu, mu_relaxed) in EXPECTED_FRICTION_PYRAMIDS.items():
+        got = (_robot_value(robot, "mu"), _robot_value(robot, "mu_relaxed"))
+        assert got == pytest.approx((mu, mu_relaxed), rel=1e-12), robot
+
+
+# The walking force QP's (mu, mu_relaxed): the paper's 0.65 and 1.75 on Valkyrie's 0.8 floor,
+# in proportion on the G1's 0.6 feet and Apollo's 2.0 contact pairs.
+EXPECTED_FRICTION_PYRAMIDS = {
+    "valkyrie": (0.65, 1.75),
+    "g1": (0.65 * 0.75, 1.75 * 0.75),
+    "apollo": (0.65 * 2.5, 1.75 * 2.5),
+}
+
+
+@pytest.mark.parametrize("robot", [VALKYRIE, G1, APOLLO], ids=lambda r: r.name)
+def test_each_robot_states_its_models_foot_friction_and_the_qp_follows_it(models, robot):
+    """The stated friction is the model's (MuJoCo's rule: contact pairs, else priority,
+    else the larger); the walking and shaking configs' pyramids follow it; a description
+    that misstates it is refused with the model's value."""
+    model = VALKYRIE.load() if robot is VALKYRIE else models[robot.name]
+    assert model_foot_friction(robot, model) == pytest.approx(robot.foot_friction, abs=1e-9)
+    mu, mu_relaxed = EXPECTED_FRICTION_PYRAMIDS[robot.name]
+    for config in (walking_config(robot), body_shaking_config("H2", robot)):
+        assert (config.force_qp.mu, config.force_qp.mu_relaxed) == pytest.approx(
+            (mu, mu_relaxed), rel=1e-12
+        )
+    assert walking_config(robot).force_qp.iterations == CLOSED_LOOP_QP.iterations
+    wrong = dataclasses.replace(robot, foot_friction=robot.foot_friction + 0.1)
+    with pytest.raises(ValueError, match=f"state foot_friction={robot.foot_friction:g}"):
+        check_model(wrong, model)
+    with pytest.raises(ValueError, match="foot_friction must be in"):
+        dataclasses.replace(robot, foot_friction=0.0)
+
+
+def test_foot_friction_follows_mujocos_rule_for_colliding_geoms():
+    """Without contact pairs: the higher-priority geom's friction, the larger at equal
+    priority; feet that cannot touch the floor have none."""
+    spec = mujoco.MjSpec()
+    floor = spec.worldbody.add_geom(type=mujoco.mjtGeom.mjGEOM_PLANE, size=[1, 1, 0.1])
+    floor.friction = [0.9, 0.005, 0.0001]
+    foot = spec.worldbody.add_body(name="foot", pos=[0, 0, 0.1])
+    foot.add_freejoint()
+    sole = foot.add_geom(type=mujoco.mjtGeom.mjGEOM_SPHERE, size=[0.01, 0, 0])
+    sole.friction = [0.5, 0.005, 0.0001]
+    foot.add_site(name="sole")
+    robot = dataclasses.replace(
+        VALKYRIE, feet=(dataclasses.replace(VALKYRIE.feet[0], frame="sole"),) * 2
+    )
+    assert model_foot_friction(robot, spec.compile()) == pytest.approx(0.9)
+    sole.priority = 1
+    assert model_foot_friction(robot, spec.compile()) == pytest.approx(0.5)
+    sole.contype, sole.conaffinity = 0, 0
+    assert model_foot_friction(robot, spec.compile()) is None
 
 
 @pytest.mark.parametrize("robot", ["valkyrie", "g1"])
@@ -402,3 +456,6 @@ def test_push_sweep_config_resolves_the_robots_defaults(tmp_path, robot):
     }
     assert got == EXPECTED_DEFAULTS[robot]
     assert cfg["sweep"]["fall_height"] == EXPECTED_DEFAULTS[robot]["fall_height"]
+    pyramids = (cfg["force_qp"]["mu"], cfg["force_qp"]["mu_relaxed"])
+    assert pyramids == pytest.approx(EXPECTED_FRICTION_PYRAMIDS[robot], rel=1e-12)
+    assert cfg["force_qp"]["iterations"] == CLOSED_LOOP_QP.iterations

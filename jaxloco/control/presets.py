@@ -13,6 +13,8 @@ same hierarchies name every robot's tasks. Default gains come from the descripti
 
 from __future__ import annotations
 
+import dataclasses
+
 from jaxloco.control.force_qp import ForceQPParams
 from jaxloco.control.tasks import TaskSpec
 from jaxloco.control.wblc import FootSpec, WBLCConfig
@@ -96,9 +98,27 @@ def wblc_config(
         if hierarchy not in HIERARCHIES:
             raise ValueError(f"hierarchy: one of {sorted(HIERARCHIES)} or a tuple of levels")
         hierarchy = HIERARCHIES[hierarchy]
+    overrides.setdefault("force_qp", robot_force_qp(robot))
     return WBLCConfig(
         tasks=robot_tasks(robot), hierarchy=tuple(hierarchy), feet=robot_feet(robot), **overrides
     )
+
+
+PAPER_FLOOR_FRICTION = 0.8
+"""The friction of the floor the paper's authors simulated on, for which their force QP
+planned with ``mu`` 0.65, relaxed to 1.75 (``ForceQPParams``' defaults)."""
+
+
+def robot_force_qp(robot: RobotDescription, params: ForceQPParams | None = None) -> ForceQPParams:
+    """``params`` (default ``ForceQPParams()``) with friction pyramids in the same
+    proportion to ``robot``'s foot friction as the authors' to their floor's: ``mu`` and
+    ``mu_relaxed`` times ``robot.foot_friction / 0.8`` (the paper's robot: unchanged; feet
+    of friction 0.6 get 0.49 and 1.31 instead of forces their floor does not give)."""
+    params = ForceQPParams() if params is None else params
+    ratio = robot.foot_friction / PAPER_FLOOR_FRICTION
+    if ratio == 1.0:
+        return params
+    return dataclasses.replace(params, mu=params.mu * ratio, mu_relaxed=params.mu_relaxed * ratio)
 
 
 # The walking controller's force QP runs every tick from the previous tick's solution, so
@@ -120,11 +140,12 @@ WALKING_INVERSES = ("damped",) + ("truncated",) * (len(WALKING) - 2) + ("damped"
 
 
 def walking_config(robot: RobotDescription = DEFAULT_ROBOT, **overrides) -> WBLCConfig:
-    """The walking hierarchy with the warm-started force QP settings (``CLOSED_LOOP_QP``),
+    """The walking hierarchy with the warm-started force QP settings (``CLOSED_LOOP_QP``,
+    its friction pyramids the robot's: :func:`robot_force_qp`),
     damped inverses at its first and last levels (``WALKING_INVERSES``), and the robot's
     defaults for torque rows in the force QP and the whole-body limit stage
     (``torque_limits_in_qp``, ``whole_body_limits``; None: the robot's)."""
-    overrides.setdefault("force_qp", CLOSED_LOOP_QP)
+    overrides.setdefault("force_qp", robot_force_qp(robot, CLOSED_LOOP_QP))
     overrides.setdefault("hierarchy_inverse", WALKING_INVERSES)
     for field in ("torque_limits_in_qp", "whole_body_limits"):
         if overrides.get(field) is None:

@@ -94,4 +94,5 @@ APOLLO = RobotDescription(
     gains=TaskGains(),
     planner="apollo",
     fall_height=0.6,
+    foot_friction=2.0,  # the contact pairs of its feet with the floor
 )

@@ -144,6 +144,11 @@ class RobotDescription:
     planner: str = "default"
     """The shipped step policy its walking controller loads by default (a key of
     :data:`jaxloco.learning.checkpoint.SHIPPED_POLICIES`)."""
+    foot_friction: float = 0.8
+    """The sliding friction coefficient between its feet and the floor in its model
+    (:func:`model_foot_friction`; :func:`check_model` refuses a model that differs). The
+    force QP's friction pyramids follow it (:func:`jaxloco.control.presets.robot_force_qp`):
+    the paper's authors planned with 0.65, relaxed to 1.75, on a 0.8 floor (Valkyrie's)."""
     length_scale: float | None = None
     """The robot's size relative to the reference robot that the gait's and planner's
     default numbers were chosen for (Valkyrie, 1.0): the ratio of their CoM heights above
@@ -176,6 +181,11 @@ class RobotDescription:
             raise ValueError(
                 f"RobotDescription {self.name!r}: solver_iterations must be two ints >= 1, "
                 f"got {self.solver_iterations}"
+            )
+        if not 0 < self.foot_friction < 10:
+            raise ValueError(
+                f"RobotDescription {self.name!r}: foot_friction must be in (0, 10), "
+                f"got {self.foot_friction}"
             )
         if not self.fall_height > 0:
             raise ValueError(
@@ -223,6 +233,38 @@ def robot_scale(robot: RobotDescription, model: mujoco.MjModel) -> FroudeScale:
     if robot.length_scale is not None:
         return FroudeScale(float(robot.length_scale))
     return FroudeScale(com_height(robot, model) / REFERENCE_COM_HEIGHT)
+
+
+def model_foot_friction(robot: RobotDescription, model: mujoco.MjModel) -> float | None:
+    """The least sliding friction coefficient MuJoCo gives a contact between a foot's body
+    and the world (the floor) in ``model``: an explicit contact pair's own, else, for geoms
+    whose collision masks meet, the higher-priority geom's, or the larger of the two at
+    equal priority (MuJoCo's rule). None when no foot geom can touch the world."""
+    feet = {int(model.site(foot.frame).bodyid[0]) for foot in robot.feet}
+    world = np.flatnonzero(model.geom_bodyid == 0)
+    found = []
+    paired = set()
+    for i in range(model.npair):
+        pair = {int(model.pair_geom1[i]), int(model.pair_geom2[i])}
+        bodies = {int(model.geom_bodyid[g]) for g in pair}
+        if 0 in bodies and bodies & feet:
+            found.append(float(model.pair_friction[i, 0]))
+            paired.add(frozenset(pair))
+    for g in np.flatnonzero(np.isin(model.geom_bodyid, list(feet))):
+        for w in world:
+            if frozenset((int(g), int(w))) in paired:
+                continue
+            if not (
+                model.geom_contype[g] & model.geom_conaffinity[w]
+                or model.geom_contype[w] & model.geom_conaffinity[g]
+            ):
+                continue
+            pg, pw = model.geom_priority[g], model.geom_priority[w]
+            if pg != pw:
+                found.append(float(model.geom_friction[g if pg > pw else w, 0]))
+            else:
+                found.append(float(max(model.geom_friction[g, 0], model.geom_friction[w, 0])))
+    return min(found) if found else None
 
 
 def effort_limits(model: mujoco.MjModel) -> np.ndarray:
@@ -274,6 +316,12 @@ def check_model(robot: RobotDescription, model: mujoco.MjModel) -> None:
             missing.append(f"site {name!r} ({field})")
     if not has(body, robot.base_body):
         missing.append(f"body {robot.base_body!r} (base_body)")
+    friction = model_foot_friction(robot, model) if not missing else None
+    if friction is not None and abs(friction - robot.foot_friction) > 1e-6:
+        missing.append(
+            f"feet that meet the floor with the stated foot_friction {robot.foot_friction} (the "
+            f"model's give {friction:g}: state foot_friction={friction:g})"
+        )
     if model.njnt == 0 or model.jnt_type[0] != mujoco.mjtJoint.mjJNT_FREE:
         missing.append("a free joint as its first joint (the floating base)")
     if mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_KEY, robot.keyframe) < 0:

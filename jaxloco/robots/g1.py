@@ -86,4 +86,5 @@ G1 = RobotDescription(
     gains=TaskGains().scaled(G1_SCALE),  # Valkyrie's gains at this size (Froude scaling)
     planner="g1",
     fall_height=0.45,
+    foot_friction=0.6,  # the contact spheres of its feet (priority 1)
 )
