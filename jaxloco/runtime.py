@@ -90,6 +90,13 @@ def import_mjx_quietly() -> None:
             print(line)
 
 
+def dask_setup(worker) -> None:
+    """Dask's preload hook (``LocalCluster(preload=["jaxloco.runtime"])``, ``dask worker
+    --preload jaxloco.runtime``): a worker process imports MJX quietly (:func:`
+    import_mjx_quietly`) before its first task brings code that imports it."""
+    import_mjx_quietly()
+
+
 def enable_compilation_cache(cache_dir: str | os.PathLike | None = None) -> Path:
     """Turn on JAX's persistent compilation cache so a second run skips XLA compiles.
 

@@ -293,11 +293,14 @@ def _kill_a_worker_once_chunks_start(run_dir, killed):
         killed.append(workers[0].pid)
 
 
-def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path, chunks_of_one):
+def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(
+    tmp_path, chunks_of_one, capfd
+):
     """Two Dask worker processes (one chunk each) give the outcomes of this process running
     the same chunks, bit for bit, even with one worker killed while chunks run (its task
     runs again); the run is recorded in the manifest; a damaged chunk file is run again,
-    and a second call with nothing left to do starts no cluster."""
+    and a second call with nothing left to do starts no cluster. The workers print nothing
+    about MJX's GPU backends (their preload imports MJX quietly)."""
     import threading
 
     from jaxloco.sweep import run_sweep
@@ -314,6 +317,8 @@ def test_a_local_dask_cluster_gives_the_in_process_outcomes_bit_for_bit(tmp_path
     )
     killer.join(timeout=5)
     assert killed, "no worker process was found to kill"
+    printed = capfd.readouterr()
+    assert "Failed to import" not in printed.out + printed.err
     assert two.complete.all()
     for k in FIELDS:
         np.testing.assert_array_equal(two.outcomes[k], one.outcomes[k], err_msg=k)

@@ -88,9 +88,14 @@ mmap threshold: the chunk's per-tick loop allocates many short-lived buffers
 (``docs/sweep.md``)."""
 
 
+WORKER_PRELOAD = "jaxloco.runtime"
+"""The module a worker process imports as it starts (its ``dask_setup``): MJX without the
+lines about a GPU backend jaxloco does not use."""
+
+
 def local_cluster(workers: int) -> LocalCluster:
     """A ``LocalCluster`` of ``workers`` single-threaded worker processes (no dashboard,
-    :data:`WORKER_CONFIG`)."""
+    :data:`WORKER_CONFIG`, :data:`WORKER_PRELOAD`)."""
     with dask.config.set(WORKER_CONFIG):  # the nannies hand it to their workers
         return LocalCluster(
             n_workers=workers,
@@ -98,6 +103,7 @@ def local_cluster(workers: int) -> LocalCluster:
             processes=True,
             dashboard_address=None,
             memory_limit=0,  # compiled programs, not data, fill a worker
+            preload=[WORKER_PRELOAD],
         )
 
 
