@@ -73,20 +73,44 @@ def test_retargeted_swing_is_time_consistent_and_does_not_compound():
         np.testing.assert_allclose(a[:, :2], b[:, :2], atol=1e-12)
     # Re-planned every 20 ms towards a target a little further on, as after a push. The
     # B-spline refit this replaced doubled the speed at each replan (> 100 m/s by the 6th).
+    # The height: continuing the lift-off's upward acceleration over each new swing took it
+    # to 5.4 m before the height's control points were bounded; now it stays below twice
+    # the swing's 0.1 m, and only its vertical velocity and acceleration give way.
     t, target, peak = 0.15, 0.5, 0.0
     for _ in range(6):
         pos, vel, acc = swing.evaluate(t)
         target += 0.04
         new = retarget_swing(swing, t, jnp.array([target, 0.0, 0.0]), 0.6 - t, 0.1)
-        for got, want in zip(new.evaluate(t), (pos, vel, acc), strict=True):
-            np.testing.assert_allclose(got, want, atol=1e-9)
+        got_pos, got_vel, got_acc = new.evaluate(t)
+        np.testing.assert_allclose(got_pos, pos, atol=1e-9)
+        np.testing.assert_allclose(got_vel[:2], vel[:2], atol=1e-9)
+        np.testing.assert_allclose(got_acc[:2], acc[:2], atol=1e-9)
         xs, vs, _ = jax.vmap(new.evaluate)(jnp.linspace(t, 0.6, 200))
         assert float(jnp.max(xs[:, 0])) <= target + 1e-9  # never past the target
+        assert float(jnp.max(xs[:, 2])) < 0.2
         peak = max(peak, float(jnp.max(vs[:, 0])))
         swing, t = new, t + 0.02
     np.testing.assert_allclose(swing.evaluate(0.6)[0], [target, 0.0, 0.0], atol=1e-12)
     # Within 20% of the min-jerk peak of one swing over the final distance (measured 2.45).
     assert peak < 1.2 * 1.875 * target / 0.6
+
+
+def test_swing_replanned_during_lift_off_stays_below_twice_its_height():
+    """A foot 2 cm up and still accelerating up (a G1 swing's lift-off, 63 mm swings)
+    re-planned to land 0.4 s later: continuing its vertical acceleration over the longer
+    swing took the reference 0.77 m up after a sideways push; bounded, the height stays
+    below twice the swing's, and the position and vertical velocity continue."""
+    pos = jnp.array([0.33, -0.13, 0.02])
+    vel, acc = jnp.array([0.4, 0.0, 0.6]), jnp.array([2.0, 0.0, 25.0])
+    target = jnp.array([0.66, 0.02, 0.0])
+    new = make_swing(pos, target, 2.6, 0.4, 0.063, vel, acc)
+    p, v, _ = jax.vmap(new.evaluate)(jnp.linspace(2.6, 3.0, 400))
+    assert float(jnp.max(p[:, 2])) < 2 * 0.063
+    np.testing.assert_allclose(p[0], pos, atol=1e-12)
+    np.testing.assert_allclose(p[-1], target, atol=1e-12)
+    np.testing.assert_allclose(v[0], vel, atol=1e-9)
+    unbounded_h2 = (25.0 * 0.4**2) / 2.0  # the acceleration's control point alone, ~2 m
+    assert float(new.height_points[2]) < unbounded_h2 / 10
 
 
 def test_swing_replanned_while_landing_never_goes_below_the_floor():

@@ -16,7 +16,8 @@ authors' code drove the foot through a mid-point 0.1 m above the ground.
 
 A swing re-planned mid-air continues from the old one without a jump in position, velocity
 or acceleration, except that its height never dips below the lower of its start and
-landing heights (see :func:`make_swing`): there the vertical velocity and acceleration jump.
+landing heights, nor rises above twice its height (see :func:`make_swing`): there the
+vertical velocity and acceleration jump.
 """
 
 from __future__ import annotations
@@ -140,8 +141,9 @@ class SwingSpline:
 def make_swing(start_pos, target, t0, duration, mid_height, start_vel=None, start_acc=None):
     """A swing from ``start_pos`` (moving at ``start_vel``, ``start_acc``: default at rest)
     to ``target`` at rest after ``duration`` s, with height ``mid_height`` (absolute z) at
-    half time. The height stays at or above ``min(start z, target z)``: where the start's
-    vertical velocity and acceleration would take it lower, they are not kept."""
+    half time. The height stays at or above ``floor = min(start z, target z)``, and below
+    ``floor + 2 (max(start z, mid_height) - floor)``: where the start's vertical velocity and
+    acceleration would take it beyond, they are not kept."""
     start_pos, target = jnp.asarray(start_pos), jnp.asarray(target)
     dtype = start_pos.dtype
     target = target.astype(dtype)
@@ -157,17 +159,23 @@ def make_swing(start_pos, target, t0, duration, mid_height, start_vel=None, star
     h0 = start_pos[2]
     h1 = (vel[2] * duration - s[1, 0] * h0) / s[1, 1]
     h2 = (acc[2] * duration**2 - s[2, 0] * h0 - s[2, 1] * h1) / s[2, 2]
+    # The curve lies in its control points' convex hull, so clamping them bounds the foot.
+    # Below: the lower of its start and landing heights. That binds for a foot moving down
+    # fast that must now land later (a replan near touch-down): continuing its vertical
+    # velocity and acceleration would drive the reference through the floor (measured
+    # after a 520 N push: 0.58 m below it, and the WBLC's torques went to 5e4 N m pressing
+    # the foot there). Above: the higher of its start and mid heights, for a foot still
+    # accelerating up after lift-off that must now land later: its acceleration, kept over
+    # the longer swing (h2 grows as zdd T^2), took the G1's reference 0.77 m up after a
+    # sideways push. Control points of a plain swing rise above its curve (1.5 times its
+    # height from rest), so the bound is twice the swing's height above the floor. Position
+    # stays continuous; zd, zdd jump where a bound binds.
+    floor = jnp.minimum(h0, target[2])
+    ceiling = floor + 2.0 * (jnp.maximum(h0, mid_height) - floor)
+    h1, h2 = (jnp.clip(h, floor, ceiling) for h in (h1, h2))
     mid = basis(jnp.asarray(0.5, dtype)).astype(dtype)
     partial = mid[0] * h0 + mid[1] * h1 + mid[2] * h2 + (mid[4] + mid[5] + mid[6]) * target[2]
-    h3 = (mid_height - partial) / mid[3]
-    # The curve lies in its control points' convex hull, so clamping them keeps the foot
-    # above the lower of its start and landing heights. It binds only for a foot moving
-    # down fast that must now land later (a replan near touch-down): continuing its
-    # vertical velocity and acceleration would drive the reference through the floor
-    # (measured after a 520 N push: 0.58 m below it, and the WBLC's torques went to
-    # 5e4 N m pressing the foot there). Position stays continuous; zd, zdd jump.
-    floor = jnp.minimum(h0, target[2])
-    h1, h2, h3 = (jnp.maximum(h, floor) for h in (h1, h2, h3))
+    h3 = jnp.maximum((mid_height - partial) / mid[3], floor)
     height = jnp.stack([h0, h1, h2, h3, target[2], target[2], target[2]])
     ground = jnp.stack([start_pos[:2], vel[:2], acc[:2]])
     return SwingSpline(height, ground, target, jnp.asarray(t0, dtype), duration)
