@@ -164,12 +164,12 @@ def make_swing(start_pos, target, t0, duration, mid_height, start_vel=None, star
     # fast that must now land later (a replan near touch-down): continuing its vertical
     # velocity and acceleration would drive the reference through the floor (measured
     # after a 520 N push: 0.58 m below it, and the WBLC's torques went to 5e4 N m pressing
-    # the foot there). Above: the higher of its start and mid heights, for a foot still
-    # accelerating up after lift-off that must now land later: its acceleration, kept over
-    # the longer swing (h2 grows as zdd T^2), took the G1's reference 0.77 m up after a
-    # sideways push. Control points of a plain swing rise above its curve (1.5 times its
-    # height from rest), so the bound is twice the swing's height above the floor. Position
-    # stays continuous; zd, zdd jump where a bound binds.
+    # the foot there). Above: twice the swing's height (the higher of its start and mid
+    # heights, over the floor), for a foot still accelerating up after lift-off that must
+    # now land later: its acceleration, kept over the longer swing (h2 grows as zdd T^2),
+    # took the G1's reference 0.77 m up after a sideways push. Twice, not once: a plain
+    # swing's control points rise above its curve (1.5 times its height from rest).
+    # Position stays continuous; zd, zdd jump where a bound binds.
     floor = jnp.minimum(h0, target[2])
     ceiling = floor + 2.0 * (jnp.maximum(h0, mid_height) - floor)
     h1, h2 = (jnp.clip(h, floor, ceiling) for h in (h1, h2))
