@@ -42,6 +42,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxloco import validation as v
+from jaxloco.control.triangular import lower_triangular_inverse
 
 
 @dataclasses.dataclass(frozen=True)
@@ -374,8 +375,8 @@ def affine_step_with_torques(
     hessian = (
         jnp.diag(2.0 * weights / k + rho) + (2.0 * w / k) * w_ang.T @ w_ang + rho_t * rows.T @ rows
     )
-    factor = jax.scipy.linalg.cho_factor(hessian, lower=True)
-    h_inv = jax.scipy.linalg.cho_solve(factor, jnp.eye(3 * n, dtype=dtype))
+    chol_inv = lower_triangular_inverse(jnp.linalg.cholesky(hessian))
+    h_inv = chol_inv.T @ chol_inv
     q = -(2.0 * w / k) * (w_ang.T @ (f_ang / s))
     g_lin = h_inv @ w_lin.T
     schur = w_lin @ g_lin + jnp.eye(3, dtype=dtype) * jnp.finfo(dtype).eps

@@ -42,6 +42,7 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxloco.control.pinv import damped_pinv_psd, pinv_psd
+from jaxloco.control.triangular import lower_triangular_inverse
 
 INVERSES = {"truncated": pinv_psd, "damped": damped_pinv_psd}
 """The per-level inverses of ``J A^-1 J'``: ``truncated`` (the paper's thresholded
@@ -102,10 +103,10 @@ def whiten_task(jacobian, command):
     chol = jnp.linalg.cholesky(gram + jitter * jnp.eye(gram.shape[-1], dtype=dtype))
     vector = command.ndim == jacobian.ndim - 1
     rhs = command[..., None] if vector else command
-    # One triangular solve for the rows and the command.
-    solved = jax.scipy.linalg.solve_triangular(
-        chol, jnp.concatenate([jacobian, rhs], axis=-1), lower=True
-    )
+    # C^-1 once, then one product for the rows and the command: LAPACK's triangular solve
+    # costs per column of its right-hand side, and the rows have nv + r columns.
+    inverse = jnp.vectorize(lower_triangular_inverse, signature="(m,m)->(m,m)")(chol)
+    solved = inverse @ jnp.concatenate([jacobian, rhs], axis=-1)
     whitened, command = solved[..., : jacobian.shape[-1]], solved[..., jacobian.shape[-1] :]
     return whitened, command[..., 0] if vector else command
 

@@ -31,6 +31,7 @@ from brax.math import quat_mul
 from flax import struct
 from mujoco import mjx
 
+from jaxloco.control.triangular import lower_triangular_inverse
 from jaxloco.dynamics import centroidal, se3
 from jaxloco.dynamics import jacobians as jac
 from jaxloco.dynamics.engine_terms import EngineTerms, dense_mass_matrix, engine_data
@@ -171,8 +172,7 @@ def snapshot_of_data(mx: mjx.Model, d: mjx.Data, mass_matrix) -> RobotSnapshot:
         mx, d, smoothed=True, com_jac=jcm[3:] / total, mass_matrix=mass_matrix
     )
     chol = jnp.linalg.cholesky(terms.mass_matrix)
-    nv = chol.shape[0]
-    chol_inv = jax.scipy.linalg.solve_triangular(chol, jnp.eye(nv, dtype=chol.dtype), lower=True)
+    chol_inv = lower_triangular_inverse(chol)
     return RobotSnapshot(
         data=d,
         mass_matrix=terms.mass_matrix,
