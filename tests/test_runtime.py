@@ -70,3 +70,31 @@ def test_configure_imports_mjx_without_the_warp_line():
         pytest.skip("this environment's MJX prints nothing on import (Warp installed?)")
     configured = "from jaxloco.runtime import configure\nconfigure()\nfrom mujoco import mjx"
     assert output(configured + "\nprint('ok')").strip() == "ok"
+
+
+@pytest.mark.parametrize(
+    "code",
+    [
+        "import jaxloco.control.tasks",  # brax's math imports MJX
+        "import jaxloco.dynamics.se3",
+        "import jaxloco.sim",
+        # A Dask worker of a `jaxloco push-sweep` re-imports its parent's main module, the
+        # experiment script, before its preload runs.
+        "import runpy; runpy.run_path('experiments/push_sweep.py', run_name='__mp_main__')",
+    ],
+)
+def test_the_library_imports_mjx_without_the_warp_line(code):
+    """Whichever library module a process imports first, MJX's import stays quiet."""
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    out = subprocess.run(
+        [sys.executable, "-c", "from mujoco import mjx"], capture_output=True, text=True,
+        timeout=300,
+    )  # fmt: skip
+    if "warp" not in out.stdout:
+        pytest.skip("this environment's MJX prints nothing on import (Warp installed?)")
+    out = subprocess.run(
+        [sys.executable, "-c", code + "\nprint('ok')"], capture_output=True, text=True,
+        timeout=300, cwd=root,
+    )  # fmt: skip
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip() == "ok"

@@ -11,6 +11,9 @@ the envelope held constant, was off by ~0.5 rad/s while the amplitude ramped and
 
 from __future__ import annotations
 
+import jaxloco.dynamics.quiet_mjx  # noqa: F401  (before brax, whose math imports MJX)
+
+# isort: split
 import dataclasses
 
 import jax

@@ -21,6 +21,9 @@ in double support) without changing any shape. Gains are a separate pytree (see
 
 from __future__ import annotations
 
+import jaxloco.dynamics.quiet_mjx  # noqa: F401  (before brax, whose math imports MJX)
+
+# isort: split
 import dataclasses
 
 import jax
@@ -29,12 +32,12 @@ import mujoco
 import numpy as np
 from brax.math import quat_mul
 from flax import struct
-from mujoco import mjx
 
 from jaxloco.control.triangular import lower_triangular_inverse
 from jaxloco.dynamics import centroidal, se3
 from jaxloco.dynamics import jacobians as jac
 from jaxloco.dynamics.engine_terms import EngineTerms, dense_mass_matrix, engine_data
+from jaxloco.dynamics.quiet_mjx import mjx
 from jaxloco.dynamics.terms import joint_space_terms
 
 KINDS = ("com", "cam", "orientation", "position", "joints", "contact")

@@ -37,7 +37,6 @@ import mujoco
 import numpy as np
 from flax import struct
 from flax.core import FrozenDict
-from mujoco import mjx
 
 from jaxloco import validation as v
 from jaxloco.control import force_qp
@@ -62,6 +61,7 @@ from jaxloco.control.torque_limits import TorqueLimitParams, TorqueLimitSolution
 from jaxloco.dynamics import jacobians as jac
 from jaxloco.dynamics.engine_terms import EngineTerms
 from jaxloco.dynamics.model import without_colliders
+from jaxloco.dynamics.quiet_mjx import mjx
 
 
 @dataclasses.dataclass(frozen=True)

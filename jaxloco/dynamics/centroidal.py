@@ -18,9 +18,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from mujoco import mjx
 
 from jaxloco.dynamics import se3
+from jaxloco.dynamics.quiet_mjx import mjx
 
 
 def body_world_inertia(m: mjx.Model, d: mjx.Data):

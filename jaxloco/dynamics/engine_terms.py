@@ -22,7 +22,8 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
+
+from jaxloco.dynamics.quiet_mjx import mjx
 
 
 class EngineTerms(NamedTuple):

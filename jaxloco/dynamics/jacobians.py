@@ -29,9 +29,9 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from jaxloco.dynamics import se3
+from jaxloco.dynamics.quiet_mjx import mjx
 
 
 def smooth(m: mjx.Model, d: mjx.Data) -> mjx.Data:

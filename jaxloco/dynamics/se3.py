@@ -8,6 +8,9 @@ is ``ad_{V} S`` (the Lie bracket; paper Eq. 29 with ``Ad_{T'} = Ad_T ad_V``).
 
 from __future__ import annotations
 
+import jaxloco.dynamics.quiet_mjx  # noqa: F401  (before brax, whose math imports MJX)
+
+# isort: split
 import jax.numpy as jnp
 from brax import math as quat_math
 

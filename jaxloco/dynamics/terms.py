@@ -10,9 +10,9 @@ from __future__ import annotations
 
 import jax
 from flax import struct
-from mujoco import mjx
 
 from jaxloco.dynamics.jacobians import com_jacobian, smooth
+from jaxloco.dynamics.quiet_mjx import mjx
 
 
 @struct.dataclass

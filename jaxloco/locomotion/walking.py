@@ -14,13 +14,13 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxloco.control.force_qp import ForceQPState
 from jaxloco.control.presets import foot_task, walking_config
 from jaxloco.control.tasks import TaskReference
 from jaxloco.control.wblc import WBLC, WBLCConfig, make_wblc
 from jaxloco.dynamics.engine_terms import EngineTerms
+from jaxloco.dynamics.quiet_mjx import mjx
 from jaxloco.learning.loading import load_planner
 from jaxloco.learning.scaled import ScaledPlanner, planner_at_height
 from jaxloco.locomotion import gait as gait_lib

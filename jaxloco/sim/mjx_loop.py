@@ -32,9 +32,9 @@ import jax.numpy as jnp
 import mujoco
 import numpy as np
 from flax import struct
-from mujoco import mjx
 
 from jaxloco import validation as v
+from jaxloco.dynamics.quiet_mjx import mjx
 from jaxloco.sim.push import push_force
 
 MODEL_LIMITS = "model"

@@ -24,9 +24,9 @@ import mujoco
 import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import batch as mj_batch
-from mujoco import mjx
 
 from jaxloco.dynamics.engine_terms import bind_engine_terms, check_same_dynamics
+from jaxloco.dynamics.quiet_mjx import mjx
 from jaxloco.locomotion.walking import WalkingController, WalkingState
 from jaxloco.runtime import single_thread_compiler_options
 from jaxloco.sim.mjx_loop import LoopState, closed_loop_step, mjx_data_from_c

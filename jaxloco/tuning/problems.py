@@ -25,7 +25,6 @@ import jax
 import jax.numpy as jnp
 import mujoco
 import numpy as np
-from mujoco import mjx
 
 from jaxloco import validation as v
 from jaxloco.control.presets import body_shaking_config
@@ -33,6 +32,7 @@ from jaxloco.control.shaking import ShakingParams, shaking_reference
 from jaxloco.control.wblc import make_wblc
 from jaxloco.dynamics.engine_terms import check_same_dynamics
 from jaxloco.dynamics.model import keyframe_qpos
+from jaxloco.dynamics.quiet_mjx import mjx
 from jaxloco.locomotion.gait import com_reference
 from jaxloco.sim.mjx_loop import loop_state_from_c
 from jaxloco.sim.push import PushArrays, body_index
