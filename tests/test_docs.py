@@ -16,8 +16,10 @@ PAGES = [
     if "```python" in p.read_text()
 ]
 QUICK = ("README.md", "control.md", "planner.md")
-"""Pages whose samples run in seconds. The others train policies, walk for seconds or run
-searches at full size."""
+"""Pages whose samples run in seconds."""
+SLOW = ("dynamics.md", "locomotion.md")
+"""Pages whose samples run in a minute or so (``make test-all``). The others train
+policies, tune gains or run searches at full size."""
 
 
 def script(page: Path) -> str:
@@ -36,8 +38,10 @@ def test_every_sample_page_defines_what_it_uses(page, tmp_path):
     assert found.returncode == 0, found.stdout + found.stderr
 
 
-@pytest.mark.parametrize("name", QUICK)
-def test_the_quick_samples_run_as_written(name, tmp_path):
+@pytest.mark.parametrize(
+    "name", [*QUICK, *(pytest.param(name, marks=pytest.mark.slow) for name in SLOW)]
+)
+def test_the_samples_run_as_written(name, tmp_path):
     page = ROOT / name if name == "README.md" else ROOT / "docs" / name
     path = tmp_path / f"{page.stem}.py"
     path.write_text(script(page))
