@@ -66,6 +66,26 @@ def test_pinv_psd_matches_numpy_on_rank_deficient_matrices():
         assert int(rank(jnp.asarray(m))) == r
 
 
+def test_three_by_three_blocks_use_jacobi_with_the_same_thresholds():
+    """3 x 3 blocks (the hierarchy's 3-row levels) go through element-wise Jacobi
+    rotations instead of LAPACK: against NumPy on ranks 0-3, repeated eigenvalues, a
+    diagonal and scales 1e-8..1e4, batched, and its gradient at constant rank."""
+    rng = np.random.default_rng(3)  # its own draws: the module's stream stays as it was
+    cases = [np.zeros((3, 3)), np.eye(3), np.diag([2.0, 2.0, 0.0]), np.diag([1e-3, 5.0, 1.0])]
+    for r in (1, 2, 3):
+        for size in (1e-4, 1.0, 1e2):
+            b = size * rng.normal(size=(3, r))
+            cases.append(b @ b.T)
+    batch = jnp.asarray(np.stack(cases))
+    got = jax.vmap(pinv_psd)(batch)
+    for m, p in zip(cases, np.asarray(got), strict=True):
+        expected = np.linalg.pinv(m, rcond=1e-8, hermitian=True) if m.any() else np.zeros_like(m)
+        np.testing.assert_allclose(p, expected, rtol=1e-9, atol=1e-9 * np.abs(expected).max())
+    b = jnp.asarray(rng.normal(size=(3, 2)))
+    w = jnp.asarray(rng.normal(size=(3, 3)))
+    check_grads(lambda b: jnp.sum(w * pinv_psd(b @ b.T)), (b,), order=1, modes=("fwd", "rev"))
+
+
 def test_pinv_psd_gradient_at_constant_rank():
     """The custom JVP (Golub-Pereyra) against finite differences, both modes."""
     b = jnp.asarray(RNG.normal(size=(5, 3)))
