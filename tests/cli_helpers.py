@@ -6,7 +6,36 @@ import subprocess
 import sys
 from pathlib import Path
 
+from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
+
 ROOT = Path(__file__).resolve().parent.parent
+
+CI_SEARCH = [
+    "search.directions_deg=[0.0]",
+    "search.phases=[0.5]",
+    "search.replan=[true]",
+    "search.impulse_range=[0,40]",
+    "search.rounds=2",
+    "search.replicas=2",
+    "search.min_recovered=1",
+    "search.push_step=1",
+    "search.horizon=0.8",
+    "search.steps_after=1",
+    "workers=1",
+    "chunk_size=2",
+    # The search's machinery, tested on Algorithm 1's policy alone: the default's
+    # look-ahead makes the compile longer, and the walking tests cover it.
+    f"planner={assets_dir() / SHIPPED_POLICIES['algorithm1']}",
+]
+"""``jaxloco push-sweep``'s overrides for a CI-sized main job (one cell, two rounds)."""
+CI_PORTRAIT = [
+    "portrait_steps=4",
+    "steering_steps=[3,2]",
+    "steering_degrees=[18.8,-10]",
+    "lookahead.grid_shape=[5,5,5]",
+    "dpi=60",
+]
+"""``jaxloco phase-portrait``'s overrides for a CI-sized run."""
 
 
 def install_wheel(tmp_dir: Path) -> Path:

@@ -6,7 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
-from cli_helpers import run_cli
+from cli_helpers import CI_PORTRAIT, run_cli
 from omegaconf import OmegaConf
 
 from jaxloco import cli
@@ -47,14 +47,7 @@ def test_cli_rejects_unknown_experiment():
 def test_phase_portrait_ci_sized(tmp_path, installed_jaxloco):
     """From the installed wheel, away from the checkout, as a user runs it."""
     proc = run_cli(
-        [
-            "phase-portrait",
-            "portrait_steps=4",
-            "steering_steps=[3,2]",
-            "steering_degrees=[18.8,-10]",
-            "lookahead.grid_shape=[5,5,5]",
-            "dpi=60",
-        ],
+        ["phase-portrait", *CI_PORTRAIT],
         tmp_path,
         installed=installed_jaxloco,
     )

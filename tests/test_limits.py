@@ -7,9 +7,8 @@ import sys
 
 import numpy as np
 import pytest
-from cli_helpers import run_cli
+from cli_helpers import CI_SEARCH, run_cli
 
-from jaxloco.learning.checkpoint import SHIPPED_POLICIES, assets_dir
 from jaxloco.sweep.bisection import search_limits
 from jaxloco.sweep.limit_search import LimitSearch, round_table
 
@@ -133,25 +132,6 @@ def test_a_run_directory_holds_one_search(tmp_path):
     search_limits(search, tmp_path, robot, progress=False)
     with pytest.raises(ValueError, match="another limit search.*first_seed"):
         search_limits(LimitSearch(**SMALL, first_seed=6), tmp_path, robot)
-
-
-CI_SEARCH = [
-    "search.directions_deg=[0.0]",
-    "search.phases=[0.5]",
-    "search.replan=[true]",
-    "search.impulse_range=[0,40]",
-    "search.rounds=2",
-    "search.replicas=2",
-    "search.min_recovered=1",
-    "search.push_step=1",
-    "search.horizon=0.8",
-    "search.steps_after=1",
-    "workers=1",
-    "chunk_size=2",
-    # The search's machinery, tested on Algorithm 1's policy alone: the default's
-    # look-ahead makes the compile longer, and the walking tests cover it.
-    f"planner={assets_dir() / SHIPPED_POLICIES['algorithm1']}",
-]
 
 
 def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path, installed_jaxloco):

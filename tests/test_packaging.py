@@ -2,13 +2,16 @@
 carries the assets and the experiments, so a non-editable install loads the model and the
 shipped policy and its ``jaxloco`` command lists and runs the experiments."""
 
+import json
+import os
 import subprocess
 import sys
 import tomllib
 import zipfile
 from pathlib import Path
 
-from cli_helpers import installed_env
+import pytest
+from cli_helpers import CI_PORTRAIT, CI_SEARCH, installed_env
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -75,3 +78,43 @@ def test_a_wheel_install_loads_the_packaged_assets(installed_jaxloco, tmp_path):
     listing = installed(cli)
     assert "push-sweep" in listing and "walk-steer" in listing
     assert "planner:" in installed(cli, "phase-portrait", "--cfg", "job")
+
+
+@pytest.mark.slow
+def test_a_clean_venv_install_runs_the_commands_from_any_folder(installed_jaxloco, tmp_path):
+    """The wheel as a user installs it: ``pip install`` into a new virtual environment
+    (its dependencies resolved there, from the project's constraints), then the
+    ``jaxloco`` command it puts on the venv's path, run from a folder outside the checkout
+    with no ``PYTHONPATH``: the listing, a CI-sized phase portrait and a CI-sized main job
+    with its report."""
+    (wheel,) = installed_jaxloco.parent.glob("jaxloco-*.whl")
+    venv = tmp_path / "venv"
+    subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
+    subprocess.run(
+        [venv / "bin" / "python", "-m", "pip", "install", "--quiet", "-c",
+         ROOT / "constraints.txt", wheel],
+        check=True, capture_output=True, timeout=1200,
+    )  # fmt: skip
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    env = {
+        k: v
+        for k, v in os.environ.items()
+        if k not in ("PYTHONPATH", "JAXLOCO_ASSETS_DIR", "JAXLOCO_EXPERIMENTS_DIR", "VIRTUAL_ENV")
+    }
+
+    def jaxloco(*args):
+        out = subprocess.run(
+            [venv / "bin" / "jaxloco", *args],
+            cwd=elsewhere, env=env, capture_output=True, text=True, timeout=900,
+        )  # fmt: skip
+        assert out.returncode == 0, out.stderr[-3000:]
+        return out
+
+    assert "push-sweep" in jaxloco().stdout
+    jaxloco("phase-portrait", *CI_PORTRAIT, "hydra.run.dir=portrait")
+    assert (elsewhere / "portrait" / "phase_portrait.png").stat().st_size > 0
+    jaxloco("push-sweep", *CI_SEARCH, "hydra.run.dir=limits")
+    summary = json.loads((elsewhere / "limits" / "summary.json").read_text())
+    assert summary["cells"][0]["tested_Ns"] == [20.0, 30.0]
+    assert (elsewhere / "limits" / "limits_polar.png").stat().st_size > 0
