@@ -41,9 +41,8 @@ SMALL_LOOP_BYTES = 16_000
 """XLA:CPU compiles a while loop (``lax.scan``, ``fori_loop``) whose one iteration touches
 fewer bytes than this into a single kernel, instead of dispatching each operation of each
 iteration separately (XLA's own default: 1 kB). 16 kB takes in the force QP's ADMM loop of
-one robot, which then runs ~1.6x faster (the QP alone, one call: ~150 -> ~95 us), and
-leaves out the same loop batched (the compiled 16-robot walking step keeps its one loop
-dispatched); at 64 kB the 64-robot loop was taken in too, and ran slower."""
+one robot, and leaves out the same loop batched, which runs faster dispatched
+(docs/architecture.md, measured choices)."""
 
 
 def configure(small_loop_bytes: int = SMALL_LOOP_BYTES) -> None:

@@ -79,16 +79,15 @@ class ForceQPParams:
     """Forces are solved in units of this many newtons (conditioning)."""
     torque_rho: float = 3.0
     """ADMM penalty of the torque-limit rows (with :class:`TorqueRows`, each row scaled to
-    unit norm), relative to ``rho``. Against quadprog on random leg-like rows, 1000 cold
-    iterations: median objective error 4e-7 at 3, 5e-6 at 1, 1e-6 at 0.3 (90th percentiles
-    5e-3, 2e-2, 1e-2)."""
+    unit norm), relative to ``rho``: the value that met quadprog best on random leg-like
+    rows (docs/architecture.md, measured choices)."""
     torque_dual_max: float = 100.0
     """Bound on the scaled dual of each torque-limit row. Where the forces cannot bring a
     torque within its limit (a push beyond what the legs carry), an unbounded dual would
     grow tick after tick and pull the forces off the net-force equality; bounded, a
     violated row is an exact L1 penalty of this weight (times the penalty) and the
-    violation is reported (``torque_excess``). At 10 the bound cut into feasible rows
-    (violations up to 55 N m where quadprog met every limit)."""
+    violation is reported (``torque_excess``). Too small a bound cuts into feasible rows
+    (docs/architecture.md, measured choices)."""
 
     def __post_init__(self):
         v.check_fields(
@@ -505,8 +504,7 @@ def solve_contact_forces(
         rows = g_scaled / norm[:, None]
         lo, hi = (offset_t - limit) / norm, (offset_t + limit) / norm
         # Zero rows (bounds 0) pad the variables to a multiple of 8: XLA:CPU's mat-vecs
-        # vectorise whole, and ADMM's 3n + m = 39 (8 points, 15 rows) ran 2.2x slower per
-        # step than 40 (measured on a 39- against a 40-wide scan).
+        # vectorise whole (docs/architecture.md, measured choices).
         m = rows.shape[0]
         pad = -(points.shape[0] * 3 + m) % 8
         padded = jnp.pad(rows, ((0, pad), (0, 0)))

@@ -2,8 +2,7 @@
 
 On XLA:CPU a triangular solve is one LAPACK call per matrix of the batch, whose cost
 at the tick's sizes (the 24 to 38 dofs of a humanoid, a 24-force QP) is mostly per call and
-per column of the right-hand side, not arithmetic: inverting a 35 x 35 factor against the
-identity took 12 us per robot of a 64-robot batch, half the dynamics snapshot's own work.
+per column of the right-hand side, not arithmetic (docs/architecture.md, measured choices).
 Split in 2 x 2 blocks, ``[[A, 0], [C, B]]^-1 = [[A^-1, 0], [-B^-1 C A^-1, B^-1]]``, the
 inverse is two half-size inverses and two products, and the products are what XLA does
 well; below :data:`LEAF` rows the blocks go to LAPACK. The result is the same inverse to
@@ -16,8 +15,8 @@ import jax
 import jax.numpy as jnp
 
 LEAF = 12
-"""Blocks of at most this many rows are inverted by LAPACK's triangular solve (at batch 64
-on 2 cores, 12 was as fast as 9 and faster than 6 or 18 for 24 to 35 rows)."""
+"""Blocks of at most this many rows are inverted by LAPACK's triangular solve (the
+fastest leaf for the WBLC's 24 to 35 rows: docs/architecture.md, measured choices)."""
 
 
 def lower_triangular_inverse(lower: jax.Array, leaf: int = LEAF) -> jax.Array:

@@ -481,7 +481,7 @@ def advance(
     # touch-down on the landed foot, which stands where it was measured at the height it
     # was planned to land at (a foot that lands late, after a push, is still in the air at
     # the planned touch-down, and its measured height would lift every later footstep and
-    # the CoM reference off the floor: measured after a 520 N push, 1.2 cm, then 6.4 cm).
+    # the CoM reference off the floor: docs/architecture.md, measured choices).
     landed_pos = feet_pos[landing].at[2].set(state.target[2])
     stance = jnp.where(first, state.stance, landing)
     stance_pos = jnp.where(first, feet_pos[state.stance], landed_pos)

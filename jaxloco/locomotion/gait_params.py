@@ -52,10 +52,9 @@ class GaitParams:
     """Step timing adaptation: bounds on the lateral DCM ``y + yd / omega`` (stance frame,
     m) at touch-down, (inwards, past the stance foot; outwards, towards the swing side).
     The PSP times a step by the sagittal orbits, so after a lateral push it can plan a
-    touch-down long after the lateral DCM has run out of reach (after a 520 N push, the
-    LIPM predicted 1.9 m at a touch-down planned 0.69 s ahead, from a traced state). A
-    step planned to land later than the LIPM's DCM reaches its bound lands then, on the
-    capture step (below)."""
+    touch-down long after the lateral DCM has run out of reach (docs/architecture.md,
+    measured choices). A step planned to land later than the LIPM's DCM reaches its bound
+    lands then, on the capture step (below)."""
     max_com_lead: float = 0.18
     """Step timing adaptation, sagittal: the farthest the CoM may run ahead of the stance
     foot (stance frame, m) before touch-down. On our model the stance ankle reaches its

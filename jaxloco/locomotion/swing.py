@@ -11,8 +11,8 @@ authors' code drove the foot through a mid-point 0.1 m above the ground.
   target at rest at ``t0 + T``: minimum jerk, and *time-consistent*: re-planning it from
   any point of itself to the same target and landing time gives back the same path. That
   is what a swing re-planned every few ticks (Eq. 33-34 after a push) needs. A B-spline
-  refitted the same way is not: each refit speeds the foot up, and replans 20 ms apart
-  compounded into a 7 m/s reference 15 cm past its target after a 520 N push (measured).
+  refitted the same way is not: each refit speeds the foot up, and replans a few ticks
+  apart compound it past the target (docs/architecture.md, measured choices).
 
 A swing re-planned mid-air continues from the old one without a jump in position, velocity
 or acceleration, except that its height never dips below the lower of its start and
@@ -162,12 +162,12 @@ def make_swing(start_pos, target, t0, duration, mid_height, start_vel=None, star
     # The curve lies in its control points' convex hull, so clamping them bounds the foot.
     # Below: the lower of its start and landing heights. That binds for a foot moving down
     # fast that must now land later (a replan near touch-down): continuing its vertical
-    # velocity and acceleration would drive the reference through the floor (measured
-    # after a 520 N push: 0.58 m below it, and the WBLC's torques went to 5e4 N m pressing
-    # the foot there). Above: twice the swing's height (the higher of its start and mid
-    # heights, over the floor), for a foot still accelerating up after lift-off that must
-    # now land later: its acceleration, kept over the longer swing (h2 grows as zdd T^2),
-    # took the G1's reference 0.77 m up after a sideways push. Twice, not once: a plain
+    # velocity and acceleration would drive the reference through the floor, and the WBLC
+    # would press the foot there (docs/architecture.md, measured choices). Above: twice the
+    # swing's height (the higher of its start and mid heights, over the floor), for a foot
+    # still accelerating up after lift-off that must now land later: its acceleration, kept
+    # over the longer swing (h2 grows as zdd T^2), took the reference far above the swing
+    # after a sideways push. Twice, not once: a plain
     # swing's control points rise above its curve (1.5 times its height from rest).
     # Position stays continuous; zd, zdd jump where a bound binds.
     floor = jnp.minimum(h0, target[2])

@@ -164,8 +164,8 @@ def _cam_reference(ctrl: WalkingController, snap, qpos, body_yaw):
     at ``arm_return_rate``.
 
     The CAM task sits above the arm posture, so the arms carry whatever momentum the rest
-    of the body does not. With a zero reference they cancel the body's own turn (measured
-    while steering 18.8 deg a step: shoulders at 7-15x their effort limits); with the turn
+    of the body does not. With a zero reference they cancel the body's own turn, far past
+    the shoulders' effort limits (docs/architecture.md, measured choices); with the turn
     alone they still wind up, turn after turn, until past their joint limits. Walking
     straight the turn term is zero.
     """
@@ -229,8 +229,8 @@ def make_walking_controller(
         planner = planner_at_height(planner, gait.com_height)
     wblc = make_wblc(model, config)
     qpos0 = robot.keyframe_qpos(model) if keyframe_qpos is None else np.asarray(keyframe_qpos)
-    # From MuJoCo C's kinematics: MJX's, op by op, took 28.6 s here (hundreds of small
-    # compiles, each too small for the persistent cache).
+    # From MuJoCo C's kinematics: MJX's, run op by op, is hundreds of small compiles, each
+    # too small for the persistent cache.
     posture = wblc.hold_references_at(model, qpos0)
     return WalkingController(
         wblc=wblc,

@@ -88,9 +88,8 @@ APOLLO = RobotDescription(
     keyframe="walk",
     torque_limits_in_qp=True,
     length_scale=APOLLO_SCALE.length,
-    # Valkyrie's gains as they are: scaled to Apollo's size (kp x1.21, kd x1.10), a 12-step
-    # walk commanded the legs 39x their limits and relaxed the friction cone 80 ticks,
-    # against 3.7x and none unscaled (docs/robots.md).
+    # Valkyrie's gains as they are: scaled to Apollo's size they commanded the legs far
+    # past their limits and relaxed the friction cone (docs/robots.md).
     gains=TaskGains(),
     planner="apollo",
     fall_height=0.6,

@@ -164,8 +164,7 @@ def loop_state_from_c(
     mx: mjx.Model, model: mujoco.MjModel, data: mujoco.MjData, controller_state
 ) -> LoopState:
     """The loop state of MuJoCo C's ``data`` (after ``mj_forward``), not fallen: no
-    program to trace or compile (``mjx.forward`` inside the shaking problem's loss was 9 of
-    its 37 s of tracing, under a profiler)."""
+    ``mjx.forward`` program to trace or compile."""
     d = mjx_data_from_c(mx, model, data)
     return LoopState(d, controller_state, jnp.array(False), jnp.asarray(jnp.inf, d.qpos.dtype))
 

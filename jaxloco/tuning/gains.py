@@ -13,8 +13,8 @@ A :class:`GainSpace` says which of them are tuned and how:
   ``kd0 * exp(s)``: for the task's error dynamics ``e'' + kd e' + kp e = 0`` this scales the
   natural frequency ``sqrt(kp)`` by ``exp(s)`` and keeps the damping ratio
   ``kd / (2 sqrt(kp))`` hand-set. One number per task instead of two, and the one that
-  matters most: tuning kp and kd freely lowered kd until the task was under-damped
-  in earlier tuning runs.
+  matters most, and the damping ratio cannot be traded away (tuned freely, kd fell until
+  the task was under-damped: docs/architecture.md, measured choices).
 
 Gains not named stay as they are and get no gradient.
 

@@ -125,8 +125,8 @@ def shaking_loss(
     data0.qpos[:] = keyframe_qpos(model, "walk")
     mujoco.mj_forward(model, data0)
     qpos0 = jnp.asarray(data0.qpos)
-    # From MuJoCo C: no program to compile (MJX's forward pass inside the loss was 9 of its
-    # 37 s of tracing, under a profiler; op by op, MJX's kinematics took ~40 s).
+    # From MuJoCo C: no forward pass to trace into the loss (docs/architecture.md,
+    # measured choices).
     refs0 = ctrl.hold_references_at(model, qpos0)
     state0 = loop_state_from_c(mx, model, data0, ctrl.initial_qp_state())
     com0 = jnp.asarray(data0.subtree_com[0])
@@ -179,8 +179,7 @@ def shaking_loss(
 
         # One batch of every (push, frequency) pair, each rollout from its own copy of the
         # start state: a scan whose carry starts batched is vmapped in one pass over the
-        # tick (measured under a profiler: the loss traced in 13 s, against 27 s from one
-        # unbatched start state).
+        # tick, so the loss traces the tick once (docs/architecture.md, measured choices).
         n_push, n_freq = pushes.magnitude.shape[0], len(frequencies)
         pairs_push = jax.tree.map(lambda x: jnp.repeat(x, n_freq, axis=0), pushes)
         pairs_freq = jnp.tile(jnp.asarray(frequencies, dtype), n_push)
@@ -367,7 +366,7 @@ def push_loss(
                 "dcm": jnp.sum(dcm_error.astype(dcm.dtype) ** 2),
                 "tilt": jnp.sum((up - up0.astype(up.dtype)) ** 2),
                 # The torques the actuators apply: the WBLC's own can spike far past the
-                # limits for a tick (measured: |tau| ~ 2e4 N m), which swamped the loss.
+                # limits for a tick, which swamped the loss.
                 "effort": jnp.sum(jnp.clip(torques, lo, hi) ** 2) / params.torque_scale**2,
             }
             return torques, cstate, costs
