@@ -493,6 +493,29 @@ def test_walks_a_few_steps_and_recovers_a_push_ci_sized(walker):
     assert np.min(res.log.qpos[:, 2]) > 0.9
 
 
+def test_a_frontal_push_that_reverses_the_com_gets_a_backward_step_ci_sized(walker):
+    """An 85 N s push from the front mid-swing (the paper's torque bound) sends the CoM
+    backwards: the PSP has no apex for a CoM moving back, so the plans fall back to the
+    capture step, which lands the swing foot well behind the stance foot, and the robot
+    stands on it."""
+    model, ctrl = walker
+    res = simulate_walk(model, ctrl, 3.8, pushes=(Push(850.0, 180.0, 2.0, 0.1),))
+    o = res.log.outputs
+    t = res.log.time
+    assert np.min(o.com_vel[:, 0]) < -0.2  # the push reversed the walk
+    step, stance, feet = np.asarray(o.step), np.asarray(o.stance), np.asarray(o.feet)
+    landed = np.flatnonzero(np.diff(step) > 0) + 1  # the tick each swing foot lands
+    # Along x (the walk goes straight along x): the landed foot against the stance foot it
+    # stepped from.
+    advance = feet[landed, stance[landed], 0] - feet[landed - 1, stance[landed - 1], 0]
+    back = landed[advance < -0.05]
+    assert len(back), advance
+    k = back[0]
+    swing = (t > 2.0) & (step == step[k] - 1)  # the step's plans, from the push on
+    assert np.any(np.asarray(o.reason)[swing] & int(Reason.NO_APEX))  # capture steps
+    assert res.fall_time is None or res.fall_time > t[k] + 0.5, res.fall_time
+
+
 def test_walking_controller_plans_at_the_gait_com_height(walker):
     """``GaitParams.com_height`` replaces the planner's LIPM height; None keeps the height
     the policy was trained at."""
