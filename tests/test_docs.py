@@ -17,8 +17,9 @@ PAGES = [
 ]
 QUICK = ("README.md", "control.md", "planner.md")
 """Pages whose samples run in seconds."""
-SLOW = ("dynamics.md", "locomotion.md")
-"""Pages whose samples run in a minute or so as written (``make test-all``)."""
+SLOW = ("dynamics.md", "locomotion.md", "sweep.md", "tuning.md")
+"""Pages whose samples take a minute or more, as written or CI-sized (``make test-all``;
+``make test`` runs the same code paths in its own CI-sized tests)."""
 CI_SIZED = {
     "learning.md": (
         (
@@ -59,6 +60,7 @@ docs."""
 
 def test_every_sample_page_is_run():
     assert sorted(p.name for p in PAGES) == sorted({*QUICK, *SLOW, *CI_SIZED})
+    assert not set(QUICK) & set(CI_SIZED)
 
 
 def script(page: Path) -> str:
@@ -87,7 +89,11 @@ def ci_sized(name: str, text: str) -> str:
 
 @pytest.mark.parametrize(
     "name",
-    [*QUICK, *(pytest.param(name, marks=pytest.mark.slow) for name in SLOW), *CI_SIZED],
+    [
+        *QUICK,
+        *(pytest.param(name, marks=pytest.mark.slow) for name in SLOW),
+        *(name for name in CI_SIZED if name not in SLOW),
+    ],
 )
 def test_the_samples_run(name, tmp_path):
     """Every page with samples runs: as written, or CI-sized (:data:`CI_SIZED`)."""
