@@ -90,11 +90,12 @@ def test_a_clean_venv_install_runs_the_commands_from_any_folder(installed_jaxloc
     (wheel,) = installed_jaxloco.parent.glob("jaxloco-*.whl")
     venv = tmp_path / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True, timeout=300)
-    subprocess.run(
+    pip = subprocess.run(
         [venv / "bin" / "python", "-m", "pip", "install", "--quiet", "-c",
          ROOT / "constraints.txt", wheel],
-        check=True, capture_output=True, timeout=1200,
+        capture_output=True, text=True, timeout=1200,
     )  # fmt: skip
+    assert pip.returncode == 0, pip.stderr[-3000:]  # pip's own reason, not only its exit code
     elsewhere = tmp_path / "elsewhere"
     elsewhere.mkdir()
     env = {
