@@ -88,28 +88,53 @@ def tree_masks(m: mjx.Model):
     )
 
 
+@functools.lru_cache(maxsize=32)
+def _screw_layout(jnt_type: tuple, jnt_dofadr: tuple, jnt_bodyid: tuple):
+    """Static gathers that build every dof's screw axis at once (see :func:`screw_axes`):
+    per dof, the row of ``[xaxis; the rotating bodies' xmat columns; I3]`` holding its
+    direction ``a``, its joint (the anchor ``x``), and whether its axis turns (``[a; x x a]``)
+    or translates (``[0; a]``)."""
+    dofs = {mujoco.mjtJoint.mjJNT_FREE: 6, mujoco.mjtJoint.mjJNT_BALL: 3}
+    nv = sum(dofs.get(t, 1) for t in jnt_type)
+    njnt = len(jnt_type)
+    rot_bodies = []  # bodies of ball and free joints, whose xmat columns are axes
+    direction = np.zeros(nv, np.int32)
+    joint = np.zeros(nv, np.int32)
+    turns = np.zeros(nv, bool)
+    for j, (typ, adr, body) in enumerate(zip(jnt_type, jnt_dofadr, jnt_bodyid, strict=True)):
+        if typ in (mujoco.mjtJoint.mjJNT_HINGE, mujoco.mjtJoint.mjJNT_SLIDE):
+            direction[adr], joint[adr] = j, j
+            turns[adr] = typ == mujoco.mjtJoint.mjJNT_HINGE
+            continue
+        start = adr
+        if typ == mujoco.mjtJoint.mjJNT_FREE:  # world translations first
+            direction[adr : adr + 3] = -3 + np.arange(3)  # the last three rows: I3
+            joint[adr : adr + 3] = j
+            start = adr + 3
+        # rotations about the body's own axes (qvel is local), through the joint's anchor
+        direction[start : start + 3] = njnt + 3 * len(rot_bodies) + np.arange(3)
+        joint[start : start + 3] = j
+        turns[start : start + 3] = True
+        rot_bodies.append(body)
+    return np.asarray(rot_bodies, np.int32), direction, joint, turns
+
+
 def screw_axes(m: mjx.Model, d: mjx.Data) -> jax.Array:
     """``(nv, 6)`` screw axes ``[w; v]`` of every dof, world frame at the world origin."""
-    rows = [None] * m.nv
-    for j in range(m.njnt):
-        adr, typ = int(m.jnt_dofadr[j]), int(m.jnt_type[j])
-        anchor, axis = d.xanchor[j], d.xaxis[j]
-        rot = d.xmat[int(m.jnt_bodyid[j])]
-        zero = jnp.zeros(3, anchor.dtype)
-        if typ == mujoco.mjtJoint.mjJNT_HINGE:
-            rows[adr] = jnp.concatenate([axis, jnp.cross(anchor, axis)])
-        elif typ == mujoco.mjtJoint.mjJNT_SLIDE:
-            rows[adr] = jnp.concatenate([zero, axis])
-        else:
-            start = adr
-            if typ == mujoco.mjtJoint.mjJNT_FREE:
-                for k in range(3):
-                    rows[adr + k] = jnp.concatenate([zero, jnp.eye(3, dtype=anchor.dtype)[k]])
-                start = adr + 3
-            for k in range(3):  # rotations about the body's own axes (qvel is local)
-                a = rot[:, k]
-                rows[start + k] = jnp.concatenate([a, jnp.cross(anchor, a)])
-    return jnp.stack(rows)
+    rot_bodies, direction, joint, turns = _screw_layout(
+        tuple(int(x) for x in m.jnt_type),
+        tuple(int(x) for x in m.jnt_dofadr),
+        tuple(int(x) for x in m.jnt_bodyid),
+    )
+    dtype = d.xanchor.dtype
+    columns = jnp.swapaxes(d.xmat[rot_bodies], 1, 2).reshape(-1, 3)  # each body's x, y, z axes
+    table = jnp.concatenate([d.xaxis, columns, jnp.eye(3, dtype=dtype)])
+    axis = table[direction % len(table)]
+    anchor = d.xanchor[joint]
+    turning = jnp.asarray(turns, dtype)[:, None]
+    angular = axis * turning
+    linear = jnp.cross(anchor, axis) * turning + axis * (1.0 - turning)
+    return jnp.concatenate([angular, linear], axis=1)
 
 
 class BodyMotion(NamedTuple):

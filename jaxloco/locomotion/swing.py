@@ -28,6 +28,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from flax import struct
+from scipy import interpolate
 
 
 class Motion(NamedTuple):
@@ -49,35 +50,49 @@ DEGREE = 3
 NUM_POINTS = len(KNOTS) - DEGREE - 1  # 7
 
 
-def basis(u):
-    """Values of the 7 cubic basis functions at ``u`` in [0, 1] (Cox-de Boor)."""
-    u = jnp.clip(u, 0.0, 1.0)
-    k = KNOTS
-    # Degree 0: the half-open interval holding u; u = 1 belongs to the last real interval.
-    last = len(k) - DEGREE - 2
-    n = [
-        jnp.where(
-            (u >= k[i]) & ((u < k[i + 1]) | ((i == last) & (u >= k[i + 1]))) & (k[i + 1] > k[i]),
-            1.0,
-            0.0,
-        )
-        for i in range(len(k) - 1)
-    ]
-    for p in range(1, DEGREE + 1):
-        nxt = []
-        for i in range(len(k) - 1 - p):
-            left = 0.0 if k[i + p] == k[i] else (u - k[i]) / (k[i + p] - k[i]) * n[i]
-            den = k[i + p + 1] - k[i + 1]
-            right = 0.0 if den == 0 else (k[i + p + 1] - u) / den * n[i + 1]
-            nxt.append(left + right)
-        n = nxt
-    return jnp.stack(n)
+def _piecewise_coefficients() -> np.ndarray:
+    """``(4, 7, 4)``: on each of the knot vector's four intervals, the 7 basis functions as
+    cubics in the offset from the interval's start (highest power first), from SciPy's exact
+    B-spline to piecewise-polynomial conversion."""
+    spans = np.flatnonzero(np.diff(KNOTS) > 0)  # the four intervals of non-zero length
+    table = np.empty((len(spans), NUM_POINTS, DEGREE + 1))
+    for i, unit in enumerate(np.eye(NUM_POINTS)):
+        pp = interpolate.PPoly.from_spline(interpolate.BSpline(KNOTS, unit, DEGREE))
+        table[:, i, :] = pp.c[:, spans].T
+    return table
+
+
+BASIS_COEFFICIENTS = _piecewise_coefficients()
+"""``(4, 7, 4)`` the basis functions as cubics per interval (see :func:`basis_derivatives`)."""
 
 
 def basis_derivatives(u):
-    """``(3, 7)``: basis values and their first and second derivatives w.r.t. ``u``."""
-    d1 = jax.jacfwd(basis)
-    return jnp.stack([basis(u), d1(u), jax.jacfwd(d1)(u)])
+    """``(3, 7)``: the 7 cubic basis functions' values and first and second derivatives
+    w.r.t. ``u`` at ``u`` in [0, 1] (clipped; ``u = 1`` belongs to the last interval).
+
+    Evaluated as the piecewise cubics of :data:`BASIS_COEFFICIENTS`: a handful of
+    operations, where Cox-de Boor's recursion and its derivatives by ``jacfwd`` traced
+    thousands of scalar ones into every program that walks."""
+    u = jnp.clip(u, 0.0, 1.0)
+    spans = BASIS_COEFFICIENTS.shape[0]
+    interval = jnp.minimum(jnp.floor(u * spans), spans - 1)
+    s = u - interval / spans
+    one, zero = jnp.ones_like(s), jnp.zeros_like(s)
+    # Rows: d^k/du^k of (s^3, s^2, s, 1), k = 0, 1, 2.
+    powers = jnp.stack(
+        [
+            jnp.stack([s**3, s**2, s, one]),
+            jnp.stack([3.0 * s**2, 2.0 * s, one, zero]),
+            jnp.stack([6.0 * s, 2.0 * one, zero, zero]),
+        ]
+    )
+    coefficients = jnp.asarray(BASIS_COEFFICIENTS, s.dtype)[interval.astype(jnp.int32)]
+    return powers @ coefficients.T
+
+
+def basis(u):
+    """Values of the 7 cubic basis functions at ``u`` in [0, 1] (clipped)."""
+    return basis_derivatives(u)[0]
 
 
 def quintic(p0, v0, a0, p1, v1, a1, duration, t):
