@@ -73,7 +73,8 @@ def test_retargeted_swing_is_time_consistent_and_does_not_compound():
     for a, b in zip(jax.vmap(swing.evaluate)(ts), jax.vmap(same.evaluate)(ts), strict=True):
         np.testing.assert_allclose(a[:, :2], b[:, :2], atol=1e-12)
     # Re-planned every 20 ms towards a target a little further on, as after a push. The
-    # B-spline refit this replaced doubled the speed at each replan (> 100 m/s by the 6th).
+    # B-spline refit this replaced (with halved end derivatives) doubled the speed at each
+    # replan.
     # The height: continuing the lift-off's upward acceleration over each new swing took it
     # to 5.4 m before the height's control points were bounded; now it stays below twice
     # the swing's 0.1 m, and only its vertical velocity and acceleration give way.

@@ -433,10 +433,10 @@ def _apply_replan(state: GaitState, params, t, plan: StepDecision, new_pos, new_
     )
 
 
-def com_error(state: GaitState, params, psp, t, com, com_vel):
-    """Eq. 33 on the horizontal CoM state."""
-    ref_pos, ref_vel, _ = com_reference(state, params, psp, t)
-    err = jnp.concatenate([ref_pos[:2] - com[:2], 0.5 * (ref_vel[:2] - com_vel[:2])])
+def com_error(reference: Motion, com, com_vel):
+    """Eq. 33 on the horizontal CoM state, against the CoM reference at the same time
+    (:func:`com_reference`)."""
+    err = jnp.concatenate([reference.pos[:2] - com[:2], 0.5 * (reference.vel[:2] - com_vel[:2])])
     return jnp.linalg.norm(err)
 
 
@@ -466,7 +466,7 @@ def advance(
     # Replanning (Eq. 33-34), only while a foot swings and not when it is about to land (a
     # step begun this tick has not started to swing).
     ref = com_reference(state, params, psp, t)
-    err = com_error(state, params, psp, t, com, com_vel)
+    err = com_error(ref, com, com_vel)
     swinging = (state.phase == WALK) & (elapsed >= params.contact_blend) & ~due
     over = (
         swinging
@@ -574,15 +574,16 @@ def references(
     swing_pos, swing_vel, swing_acc = state.swing.evaluate(t)
     waiting = walking & (elapsed > state.step_duration)  # a late foot: press it down
     swing_pos = swing_pos.at[2].add(jnp.where(waiting, -params.late_landing_depth, 0.0))
+    com_ref = com_reference(state, params, psp, t)
     return GaitReferences(
         contact=contact,
         swinging=swinging,
-        com=com_reference(state, params, psp, t),
+        com=com_ref,
         swing=Motion(swing_pos, swing_vel, swing_acc),
         swing_foot=swing_foot,
         swing_yaw=swing_yaw,
         body_yaw=body_yaw,
-        com_error=com_error(state, params, psp, t, com, com_vel),
+        com_error=com_error(com_ref, com, com_vel),
     )
 
 

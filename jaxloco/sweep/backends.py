@@ -159,9 +159,13 @@ class CBatchBackend:
                     t, engine.qpos, engine.qvel, cstate, engine=engine
                 )
                 outcome = update_outcome(outcome, log, alive)
-                cstate = jax.tree.map(lambda a, b: jnp.where(alive, b, a), cstate, new_cstate)
+                # A fallen robot keeps its controller state: one select per packed array,
+                # not one per leaf (each a kernel of its own in the compiled program).
+                new = layout.pack((new_cstate, outcome, push))
+                old = layout.pack((cstate, outcome, push))
+                packed = {k: jnp.where(alive, new[k], old[k]) for k in new}
                 actions = jnp.concatenate([torques, push_force(push, t)])
-                return actions, layout.pack((cstate, outcome, push))
+                return actions, packed
 
             # Single-threaded kernels: faster on a sweep worker's one core. The same program
             # in every process, so outcomes do not depend on where a chunk runs.
