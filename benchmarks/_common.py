@@ -8,6 +8,7 @@ a table and writes JSON. Compile time is measured apart from steady-state time (
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
 import os
@@ -79,6 +80,33 @@ def compile_seconds(jitted, *args) -> tuple[float, object]:
     t0 = time.perf_counter()
     compiled = jitted.lower(*args).compile()
     return time.perf_counter() - t0, compiled
+
+
+_COMPILE_EVENTS = {
+    "/jax/core/compile/jaxpr_trace_duration": "trace_s",
+    "/jax/core/compile/jaxpr_to_mlir_module_duration": "lower_s",
+    "/jax/core/compile/backend_compile_duration": "xla_compile_s",
+    "/jax/compilation_cache/compile_time_saved_sec": "cache_saved_s",
+}
+
+
+@contextlib.contextmanager
+def compile_split():
+    """Seconds JAX spent inside the block tracing, lowering and compiling with XLA (JAX's
+    own monitoring events), and the compile seconds the persistent cache saved (> 0: a
+    program came from the cache, so ``xla_compile_s`` is not a cold compile)."""
+    tally = dict.fromkeys(_COMPILE_EVENTS.values(), 0.0)
+
+    def listener(event: str, duration: float, **_) -> None:
+        key = _COMPILE_EVENTS.get(event)
+        if key is not None:
+            tally[key] += duration
+
+    jax.monitoring.register_event_duration_secs_listener(listener)
+    try:
+        yield tally
+    finally:
+        jax.monitoring.unregister_event_duration_listener(listener)
 
 
 def time_calls(fn, *args, repeats: int, inner: int = 1, warmup: int = 2) -> dict:

@@ -25,7 +25,7 @@ import numpy as np
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from mujoco import batch as mj_batch
 
-from jaxloco.dynamics.engine_terms import bind_engine_terms, check_same_dynamics
+from jaxloco.dynamics.engine_terms import EngineTerms, bind_engine_terms, check_same_dynamics
 from jaxloco.dynamics.quiet_mjx import mjx
 from jaxloco.locomotion.walking import WalkingController, WalkingState
 from jaxloco.runtime import single_thread_compiler_options
@@ -98,6 +98,45 @@ class TreeLayout:
         return jax.tree.unflatten(self.treedef, leaves)
 
 
+class HostGather:
+    """Copies a tuple of host arrays (leading axis: robots) into one contiguous ``(n,
+    size)`` float64 buffer, in :class:`TreeLayout` order, so a tick passes them to the
+    jitted controller as one array: converting each of MuJoCo's bound fields separately
+    cost more than the controller's arithmetic for one robot. Two buffers alternate, so
+    the one a tick reads is never rewritten while that tick may still run."""
+
+    def __init__(self, arrays: tuple):
+        self.arrays = arrays
+        n = len(arrays[0])
+        self.layout = TreeLayout.of(tuple(np.zeros(a.shape[1:], np.float64) for a in arrays))
+        sizes = [int(np.prod(a.shape[1:], dtype=int)) for a in arrays]
+        total = sum(sizes)
+        self._buffers = [np.zeros((n, total)), np.zeros((n, total))]
+        offsets = np.cumsum([0, *sizes])
+        # Views of each buffer shaped like each array: one copy per field, no temporaries.
+        self._views = [
+            [
+                buf[:, lo:hi].reshape(a.shape)
+                for a, lo, hi in zip(arrays, offsets[:-1], offsets[1:], strict=True)
+            ]
+            for buf in self._buffers
+        ]
+        self._next = 0
+
+    def gather(self) -> np.ndarray:
+        """The arrays' current values, packed: ``(n, size)``."""
+        views = self._views[self._next]
+        for view, array in zip(views, self.arrays, strict=True):
+            np.copyto(view, array)
+        buf = self._buffers[self._next]
+        self._next = 1 - self._next
+        return buf
+
+    def unpack(self, row) -> tuple:
+        """Inside the jitted (vmapped) tick: one robot's row back into the arrays."""
+        return self.layout.unpack({"float64": row})
+
+
 def mjx_loop_states(sim_model: mujoco.MjModel, starts: ChunkStarts, mx=None) -> LoopState:
     """MJX closed-loop states (leading axis: runs) from a chunk's start states."""
     m, d = sim_model, mujoco.MjData(sim_model)
@@ -143,17 +182,23 @@ class CBatchBackend:
         self._pack = {}
         self._unpack = {}
 
-    def _tick_for(self, layout: TreeLayout):
-        """The vmapped tick over packed states: ``(t, engine, packed, alive) -> (torques and
-        push forces, packed)``, ``engine`` what MuJoCo C computed for each robot's state
-        (:class:`~jaxloco.dynamics.engine_terms.EngineTerms`). Packing the controller state,
-        the outcome and the push into one array per dtype keeps the per-tick call to a
-        handful of arrays (each array passed to or from a jitted call costs ~1-2 us of
-        dispatch)."""
-        if layout not in self._ticks:
+    def _tick_for(self, layout: TreeLayout, host: TreeLayout):
+        """The vmapped tick over packed states: ``(host, packed) -> (torques and push
+        forces, packed)``; ``host`` each robot's row of ``(time, alive, engine)`` gathered
+        by :class:`HostGather` (``host`` its layout), ``engine`` what MuJoCo C computed for
+        the robot's state (:class:`~jaxloco.dynamics.engine_terms.EngineTerms`). Packing
+        the controller state, the outcome and the push into one array per dtype, and the
+        host's arrays into one, keeps the per-tick call to a handful of arrays (each array
+        passed to a jitted call is converted on its own, at ~20 us each for MuJoCo's
+        fields)."""
+        key = (layout, host)
+        if key not in self._ticks:
             ctrl = self._ctrl
 
-            def tick(t, engine, packed, alive):
+            def tick(row, packed):
+                t, alive, *fields = host.unpack({"float64": row})
+                engine = EngineTerms(*fields)
+                alive = alive > 0.5
                 cstate, outcome, push = layout.unpack(packed)
                 torques, new_cstate, log = ctrl.step(
                     t, engine.qpos, engine.qvel, cstate, engine=engine
@@ -170,8 +215,8 @@ class CBatchBackend:
             # Single-threaded kernels: faster on a sweep worker's one core. The same program
             # in every process, so outcomes do not depend on where a chunk runs.
             options = single_thread_compiler_options()
-            self._ticks[layout] = jax.jit(jax.vmap(tick), compiler_options=options)
-        return self._ticks[layout]
+            self._ticks[key] = jax.jit(jax.vmap(tick), compiler_options=options)
+        return self._ticks[key]
 
     def run(self, starts: ChunkStarts, horizon_steps: int, progress=None) -> Outcome:
         m = self.model
@@ -186,6 +231,9 @@ class CBatchBackend:
         engine = bind_engine_terms(batch)
         qpos, time = engine.qpos, batch.bind("time")
         ctrl, xfrc = batch.bind("ctrl"), batch.bind("xfrc_applied")
+        alive = np.ones(n, bool)
+        alive_f = np.ones(n)  # alive, as the float the host buffer carries
+        host = HostGather((time, alive_f, *engine))
         cstate = jax.tree.map(jnp.asarray, starts.controller)
         pushes = PushArrays(*(jnp.asarray(x) for x in starts.pushes))
         one = jax.eval_shape(
@@ -193,7 +241,7 @@ class CBatchBackend:
             *jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), (cstate, pushes)),
         )
         layout = TreeLayout.of(one)
-        tick = self._tick_for(layout)
+        tick = self._tick_for(layout, host.layout)
         if layout not in self._pack:
             self._pack[layout] = jax.jit(
                 jax.vmap(lambda c, p: layout.pack((c, init_outcome(c), p)))
@@ -202,10 +250,9 @@ class CBatchBackend:
         packed = self._pack[layout](cstate, pushes)
         nu = m.nu
         t0 = starts.times.copy()
-        alive = np.ones(n, bool)
         fall_time = np.full(n, np.inf)
         for _ in range(horizon_steps):
-            actions, packed = tick(time, engine, packed, alive)
+            actions, packed = tick(host.gather(), packed)
             ids = np.flatnonzero(alive)
             if ids.size == 0:
                 break
@@ -217,6 +264,7 @@ class CBatchBackend:
             fell = alive & (~np.all(np.isfinite(qpos), axis=1) | (qpos[:, 2] < self.fall_height))
             fall_time[fell] = before[fell] - t0[fell]
             alive &= ~fell
+            alive_f[:] = alive
             if progress is not None:
                 progress(n)
         outcome = self._unpack[layout](packed)
