@@ -477,3 +477,25 @@ def test_tree_layout_packs_one_array_per_dtype_and_back():
     round_trip = jax.vmap(layout.unpack)(jax.vmap(layout.pack)(stacked))
     np.testing.assert_array_equal(round_trip["i"], stacked["i"])
     assert hash(layout) == hash(TreeLayout.of(tree))  # keys the compile cache
+
+
+def test_host_gather_packs_live_arrays_into_alternating_buffers():
+    from jaxloco.sweep.backends import HostGather
+
+    rng = np.random.default_rng(0)
+    time = np.array([0.5, 1.25])
+    matrix = rng.normal(size=(2, 6, 6))[:, ::2, :]  # a strided view, as MuJoCo's bound fields
+    host = HostGather((time, matrix))
+    first = host.gather()
+    assert first.shape == (2, 1 + 18)
+    t, m = jax.vmap(host.unpack)(jnp.asarray(first))
+    np.testing.assert_array_equal(t, time)
+    np.testing.assert_array_equal(m, matrix)
+    # The next gather reads the arrays' new values into the other buffer: the one a tick may
+    # still be reading is left as it was.
+    kept = first.copy()
+    time += 0.001
+    second = host.gather()
+    assert second is not first
+    np.testing.assert_array_equal(first, kept)
+    np.testing.assert_array_equal(second[:, 0], time)
