@@ -101,8 +101,8 @@ class TreeLayout:
 class HostGather:
     """Copies a tuple of host arrays (leading axis: robots) into one contiguous ``(n,
     size)`` float64 buffer, in :class:`TreeLayout` order, so a tick passes them to the
-    jitted controller as one array: converting each of MuJoCo's bound fields separately
-    cost more than the controller's arithmetic for one robot. Two buffers alternate, so
+    jitted controller as one array instead of converting each of MuJoCo's bound fields on
+    its own (docs/architecture.md, measured choices). Two buffers alternate, so
     the one a tick reads is never rewritten while that tick may still run."""
 
     def __init__(self, arrays: tuple):
@@ -189,8 +189,7 @@ class CBatchBackend:
         the robot's state (:class:`~jaxloco.dynamics.engine_terms.EngineTerms`). Packing
         the controller state, the outcome and the push into one array per dtype, and the
         host's arrays into one, keeps the per-tick call to a handful of arrays (each array
-        passed to a jitted call is converted on its own, at ~20 us each for MuJoCo's
-        fields)."""
+        passed to a jitted call is converted on its own)."""
         key = (layout, host)
         if key not in self._ticks:
             ctrl = self._ctrl
