@@ -45,13 +45,14 @@ def pytest_addoption(parser):
 # Files in the order the two workers should start them (``make test`` passes
 # ``--no-loadscope-reorder`` so xdist keeps it): the longest first, so no long file starts
 # last while the other worker idles. Measured on 2 cores (s of test time):
-# locomotion 654, wblc 538, tuning 429, sweep 242, robot_models 200, dynamics 167, training
-# 112, the rest < 90.
+# locomotion 654, wblc 538, tuning 429, docs 326, sweep 242, robot_models 200, dynamics 167,
+# training 112, the rest < 90.
 LONGEST_FIRST = (
     "test_locomotion",
     "test_wblc",
     "test_sweep",
     "test_tuning",
+    "test_docs",
     "test_robot_models",
     "test_dynamics",
 )

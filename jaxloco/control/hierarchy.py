@@ -173,7 +173,7 @@ def prioritized_accelerations(
     # updates both. The first level sees y = 0 and P = I, so its products with them are
     # skipped (XLA does not fold a product with a constant identity).
     state = None
-    for (rows, cmd), name in zip(levels, inverses, strict=True):
+    for (rows, cmd), name, m in zip(levels, inverses, sizes, strict=True):
         if whiten:
             # Whitened, the unprojected task's J A^-1 J' is I: each eigenvalue of the
             # projected one is the fraction of a task direction the levels above leave free.
@@ -187,13 +187,13 @@ def prioritized_accelerations(
             both = rows @ state
             projected, unmet = both[:, r:], cmd - both[:, :r]
         gram_pinv = INVERSES[name](projected @ projected.T, rtol, scale)
-        step = projected.T @ (gram_pinv @ jnp.concatenate([unmet, -projected], axis=1))
+        coeffs = gram_pinv @ jnp.concatenate([unmet, -projected], axis=1)  # (m, r + nv)
         if state is None:
-            state = step + jnp.concatenate(
-                [jnp.zeros((nv, r), dtype), jnp.eye(nv, dtype=dtype)], axis=1
-            )
-        else:
-            state = state + step
+            state = jnp.concatenate([jnp.zeros((nv, r), dtype), jnp.eye(nv, dtype=dtype)], axis=1)
+        # The update projected' coeffs is a sum of m outer products: written element-wise,
+        # XLA fuses it with the addition into one loop; as a product, XLA:CPU runs a small
+        # batched GEMM and a separate addition (docs/architecture.md, measured choices).
+        state = state + sum(projected[j][:, None] * coeffs[j][None, :] for j in range(m))
     y, projector = state[:, :r], state[:, r:]
     qdd = chol_inv.T @ y
     # Every level's residual from one product (one operation instead of one per level).
