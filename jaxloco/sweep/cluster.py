@@ -155,12 +155,13 @@ def run_on_dask(
     compiles the chunk program into it: XLA compiles faster unpinned than on a worker's
     one core, and every worker then loads the program instead of compiling it."""
     t_start = time.perf_counter()
+    # The cluster as the run found it: read later, a worker lost and being restarted by its
+    # nanny was missing from the count.
+    n_workers = len(client.scheduler_info()["workers"])
     driver = driver or ChunkRunner(job, make_backend=bool(job.cache_dir))
     walks_s = driver.prepare_walks(job, todo, progress)
     if job.cache_dir and driver.backend is not None and not driver.warm:
         driver.warm_up()  # into the persistent cache, for every worker to load
-    workers = list(client.scheduler_info()["workers"])
-    n_workers = len(workers)
     t_tasks = time.perf_counter()
     tag = hashlib.sha256(job.run_dir.encode()).hexdigest()[:8]
     futures = [
