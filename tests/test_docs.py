@@ -17,7 +17,7 @@ PAGES = [
     if "```python" in p.read_text()
 ]
 AS_WRITTEN = ("README.md", "control.md", "dynamics.md", "locomotion.md", "planner.md")
-"""Pages whose samples run as written (each in under half a minute on 2 cores)."""
+"""Pages whose samples run as written (each in under a minute in the full suite)."""
 CI_SIZED = {
     "learning.md": (
         (
