@@ -92,7 +92,7 @@ def stage_functions(ctrl, refs):
         return [
             task_terms(ctrl.mx, t, ctrl.indices[t.name], snap, refs[t.name], gains[t.name])
             for t in cfg.tasks
-            if any(t.name in lvl.split("+") for lvl in cfg.hierarchy)
+            if t.name in cfg.level_tasks()
         ]
 
     def qp_only(points, contact, com, f_lin, f_ang):

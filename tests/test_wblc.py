@@ -809,3 +809,52 @@ def test_config_names_a_bad_hierarchy_inverse():
         walking_config(hierarchy_inverse=("damped",))  # a tuple names every level
     with pytest.raises(ValueError, match="hierarchy_inverse"):
         wblc_config("H1", hierarchy_inverse="svd")
+
+
+def test_alternatives_are_the_task_that_is_on(valkyrie):
+    """A level ``"a|b"`` of tasks on one at a time (the walking preset's swing feet) gives
+    the hierarchy's accelerations and null space of the same tasks stacked (``"a+b"``),
+    with half the rows; both on at once is flagged. Alternatives of different sizes, or
+    with the CAM task, are refused by name."""
+    import dataclasses
+
+    from jaxloco.control import wblc as wblc_module
+
+    model, data, ctrl, refs, _ = valkyrie
+    assert "left_foot_pos|right_foot_pos" in ctrl.config.hierarchy
+    stacked = make_wblc(
+        model,
+        dataclasses.replace(
+            ctrl.config, hierarchy=tuple(lvl.replace("|", "+") for lvl in ctrl.config.hierarchy)
+        ),
+    )
+    swing = dict(refs)
+    for name in ("right_foot_pos", "right_foot_ori"):
+        swing[name] = refs[name].replace(weight=jnp.ones(()))
+    swing["right_foot_pos"] = swing["right_foot_pos"].replace(
+        pos=refs["right_foot_pos"].pos + jnp.asarray([0.03, 0.0, 0.05])
+    )
+    both = dict(swing)
+    both["left_foot_pos"] = refs["left_foot_pos"].replace(weight=jnp.ones(()))
+    contact = jnp.asarray([1.0, 0.0])
+    v = jnp.asarray(np.random.default_rng(2).normal(scale=0.2, size=model.nv))
+
+    def levels(c, refs):
+        snap = c.snapshot(jnp.asarray(data.qpos), v)
+        terms = wblc_module.task_stage(c, snap, refs, contact, c.default_gains())
+        hier = wblc_module.hierarchy_stage(c, snap, terms, refs["cam"].weight)
+        return hier, wblc_module.alternatives_overlap(c.config, terms)
+
+    run = jax.jit(lambda refs, both: (levels(ctrl, refs), levels(stacked, refs), levels(ctrl, both)))
+    (alt, alt_overlap), (ref, ref_overlap), (_, both_overlap) = run(swing, both)
+    assert float(jnp.max(jnp.abs(ref.qdd))) > 1.0  # a real swing command, not a trivial match
+    np.testing.assert_allclose(alt.qdd, ref.qdd, rtol=1e-7, atol=1e-7)
+    np.testing.assert_allclose(alt.projector, ref.projector, atol=1e-9)
+    level = ctrl.config.hierarchy.index("left_foot_pos|right_foot_pos")
+    assert alt.task_residuals[level].shape[0] == 3 and ref.task_residuals[level].shape[0] == 6
+    assert not bool(alt_overlap) and not bool(ref_overlap)
+    assert bool(both_overlap)
+    with pytest.raises(ValueError, match="alternatives 'left_foot_pos\\|arms'.*as many rows"):
+        wblc_config(("left_contact+right_contact", "left_foot_pos|arms"))
+    with pytest.raises(ValueError, match="CAM task 'cam' cannot be one of alternatives"):
+        wblc_config(("left_contact+right_contact", "com|cam"))

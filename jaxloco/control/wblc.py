@@ -79,8 +79,13 @@ class WBLCConfig:
     """Tasks, their priority order and the solver settings.
 
     ``hierarchy``: levels, highest priority first; a level ``"a+b"`` stacks tasks ``a`` and
-    ``b`` at one priority. Tasks not named in it are not used. ``cam_task``/``com_task``
-    name the tasks whose commands feed the force QP.
+    ``b`` at one priority. A level ``"a|b"`` holds tasks of as many rows that are on one at
+    a time (the swinging foot of either side): their rows, each scaled by its weight, are
+    added into one block, which is the task that is on (and nothing when neither is), with
+    half the rows of ``"a+b"``; both on at once, the block is their weighted sum, flagged
+    by ``alternatives_overlap``. The two combine: ``"a|b+c"`` stacks ``c`` under the
+    block. Tasks not named in it are not used. ``cam_task``/``com_task`` name the tasks
+    whose commands feed the force QP.
     """
 
     tasks: tuple[TaskSpec, ...]
@@ -144,11 +149,23 @@ class WBLCConfig:
         if not self.hierarchy:
             raise ValueError("WBLCConfig.hierarchy: needs at least one level")
         for level in self.hierarchy:
-            for name in level.split("+"):
-                if name not in names:
+            for block in level_blocks(level):
+                for name in block:
+                    if name not in names:
+                        raise ValueError(
+                            f"WBLCConfig.hierarchy: unknown task {name!r} in level "
+                            f"{level!r}; tasks are {names}"
+                        )
+                dims = {self.task(n).dim for n in block}
+                if len(dims) > 1:
                     raise ValueError(
-                        f"WBLCConfig.hierarchy: unknown task {name!r} in level {level!r}; "
-                        f"tasks are {names}"
+                        f"WBLCConfig.hierarchy: the alternatives {'|'.join(block)!r} in level "
+                        f"{level!r} must have as many rows each, got {sorted(dims)}"
+                    )
+                if len(block) > 1 and self.cam_task in block:
+                    raise ValueError(
+                        f"WBLCConfig.hierarchy: the CAM task {self.cam_task!r} cannot be one "
+                        f"of alternatives (level {level!r})"
                     )
         v.check_fields(
             self,
@@ -180,8 +197,18 @@ class WBLCConfig:
     def task(self, name: str) -> TaskSpec:
         return next(t for t in self.tasks if t.name == name)
 
+    def level_tasks(self) -> tuple[str, ...]:
+        """Every task the hierarchy names, in level order."""
+        return tuple(n for level in self.hierarchy for b in level_blocks(level) for n in b)
+
     def with_hierarchy(self, *levels: str) -> WBLCConfig:
         return dataclasses.replace(self, hierarchy=tuple(levels))
+
+
+def level_blocks(level: str) -> tuple[tuple[str, ...], ...]:
+    """A hierarchy level's row blocks, in order: ``"a|b+c"`` is ``(("a", "b"), ("c",))``
+    (see :class:`WBLCConfig`)."""
+    return tuple(tuple(block.split("|")) for block in level.split("+"))
 
 
 @struct.dataclass
@@ -221,6 +248,10 @@ class WBLCDiagnostics:
     level_residuals: Segments
     """Per hierarchy level (by level name or position), what it could not achieve
     (``e_k - J_k qdd_task``)."""
+    alternatives_overlap: jax.Array
+    """True when more than one task of a level's alternatives (``"a|b"``) was on: that
+    block then held their weighted sum, not either task (always False without
+    alternatives)."""
 
 
 @struct.dataclass
@@ -463,8 +494,21 @@ def wblc_tick(
             tuple(cfg.hierarchy),
             tuple(r.shape[0] for r in hier.task_residuals),
         ),
+        alternatives_overlap=alternatives_overlap(cfg, terms),
     )
     return WBLCOutput(limited.torques, diagnostics, sol.warm_start)
+
+
+def alternatives_overlap(cfg: WBLCConfig, terms: dict) -> jax.Array:
+    """Whether more than one task of any level's alternatives (``"a|b"``) is on (has a
+    row that is not zero)."""
+    overlap = jnp.zeros((), bool)
+    for level in cfg.hierarchy:
+        for block in level_blocks(level):
+            if len(block) > 1:
+                on = sum(jnp.any(terms[n].jacobian != 0).astype(jnp.int32) for n in block)
+                overlap = overlap | (on > 1)
+    return overlap
 
 
 def task_stage(
@@ -476,8 +520,7 @@ def task_stage(
     ``com_acc_limit``."""
     cfg, dtype = ctrl.config, snap.data.qvel.dtype
     foot_frames = [f.frame for f in cfg.feet]
-    used = {name for level in cfg.hierarchy for name in level.split("+")}
-    used |= {cfg.com_task, cfg.cam_task}
+    used = set(cfg.level_tasks()) | {cfg.com_task, cfg.cam_task}
     terms = {}
     for t in cfg.tasks:
         if t.name not in used:
@@ -504,25 +547,26 @@ def hierarchy_stage(ctrl: WBLC, snap: RobotSnapshot, terms: dict, cam_weight) ->
     pass."""
     cfg, dtype = ctrl.config, snap.data.qvel.dtype
     jacs, cmds = [], []
-    for level in cfg.hierarchy:
-        names = level.split("+")
-        jacs.append(jnp.concatenate([terms[n].jacobian for n in names], axis=0))
-        cmds.append(
-            jnp.concatenate(
-                [
-                    jnp.concatenate(
-                        [
-                            (terms[n].desired - terms[n].jdot_qdot)[:, None],
-                            cam_weight * jnp.eye(3, dtype=dtype)
-                            if n == cfg.cam_task
-                            else jnp.zeros((terms[n].desired.shape[0], 3), dtype),
-                        ],
-                        axis=1,
-                    )
-                    for n in names
-                ]
-            )
+
+    def command(n):
+        return jnp.concatenate(
+            [
+                (terms[n].desired - terms[n].jdot_qdot)[:, None],
+                cam_weight * jnp.eye(3, dtype=dtype)
+                if n == cfg.cam_task
+                else jnp.zeros((terms[n].desired.shape[0], 3), dtype),
+            ],
+            axis=1,
         )
+
+    for level in cfg.hierarchy:
+        blocks = level_blocks(level)
+        # Alternatives add: each task's rows are already scaled by its weight, so the sum
+        # is the task that is on, in one block of rows instead of one per task.
+        jacs.append(
+            jnp.concatenate([sum(terms[n].jacobian for n in block) for block in blocks], axis=0)
+        )
+        cmds.append(jnp.concatenate([sum(command(n) for n in block) for block in blocks]))
     return prioritized_accelerations(
         jacs,
         cmds,
