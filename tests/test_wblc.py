@@ -845,7 +845,9 @@ def test_alternatives_are_the_task_that_is_on(valkyrie):
         hier = wblc_module.hierarchy_stage(c, snap, terms, refs["cam"].weight)
         return hier, wblc_module.alternatives_overlap(c.config, terms)
 
-    run = jax.jit(lambda refs, both: (levels(ctrl, refs), levels(stacked, refs), levels(ctrl, both)))
+    run = jax.jit(
+        lambda refs, both: (levels(ctrl, refs), levels(stacked, refs), levels(ctrl, both))
+    )
     (alt, alt_overlap), (ref, ref_overlap), (_, both_overlap) = run(swing, both)
     assert float(jnp.max(jnp.abs(ref.qdd))) > 1.0  # a real swing command, not a trivial match
     np.testing.assert_allclose(alt.qdd, ref.qdd, rtol=1e-7, atol=1e-7)
