@@ -92,9 +92,9 @@ class PushSweepConfig(RunConfig):
     (Valkyrie: the paper's 500 N m bound, 2 and 4 iterations; the others: their own effort
     limits, MuJoCo's default solver)."""
     force_qp: ForceQPSchema = field(default_factory=robot_force_qp_schema(ForceQPSchema))
-    """The walking WBLC's contact-force QP (defaults: ``presets.CLOSED_LOOP_QP``, its
-    friction pyramids the robot's: ``presets.robot_force_qp``), e.g.
-    ``force_qp.iterations=200``."""
+    """The walking WBLC's contact-force QP (defaults: the robot's ``presets.walking_force_qp``:
+    ``CLOSED_LOOP_QP``, or ``CLOSED_LOOP_TORQUE_QP`` for a robot that keeps torque rows,
+    its friction pyramids the robot's), e.g. ``force_qp.iterations=200``."""
     backend: str = "c"
     """``c`` (MuJoCo C batch, the CPU default: measured faster here) or ``mjx`` (grid only)."""
     chunk_size: int = 16

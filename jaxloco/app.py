@@ -32,7 +32,7 @@ from hydra.core.config_store import ConfigStore
 from hydra.core.hydra_config import HydraConfig
 from omegaconf import OmegaConf
 
-from jaxloco.control.presets import CLOSED_LOOP_QP, robot_force_qp
+from jaxloco.control.presets import walking_force_qp
 from jaxloco.locomotion.gait_params import GaitParams
 from jaxloco.locomotion.walking import robot_gait
 from jaxloco.robots import RobotDescription, robot_by_name
@@ -59,8 +59,21 @@ ROBOT_DEFAULTS = (
     "impulse_high",
     "mu",
     "mu_relaxed",
+    "qp_iterations",
+    "qp_rho",
+    "qp_torque_rho",
 )
 """The config values that default to the config's ``robot``'s (:func:`robot_default`)."""
+
+FORCE_QP_DEFAULTS = {
+    "mu": "mu",
+    "mu_relaxed": "mu_relaxed",
+    "iterations": "qp_iterations",
+    "rho": "qp_rho",
+    "torque_rho": "qp_torque_rho",
+}
+"""The walking force QP's fields that default to the robot's (the force QP node's field:
+its :data:`ROBOT_DEFAULTS` name)."""
 
 REFERENCE_IMPULSE_HIGH = 128.0
 """The limit search's default top impulse (N s), chosen for Valkyrie (``PAPER_MASS``)."""
@@ -72,8 +85,10 @@ def robot_default(field: str) -> str:
     ``ls_iterations`` (:class:`~jaxloco.robots.RobotDescription`), the ``fall_height`` of its
     base, ``impulse_high``, the limit search's top impulse (N s): 128 N s for Valkyrie,
     the same velocity change (impulse / mass) for another robot, rounded up to 16 N s, and
-    the walking force QP's friction pyramids ``mu``, ``mu_relaxed``
-    (:func:`~jaxloco.control.presets.robot_force_qp` of ``CLOSED_LOOP_QP``)."""
+    the walking force QP's friction pyramids ``mu``, ``mu_relaxed`` and its solver's
+    ``qp_iterations``, ``qp_rho``, ``qp_torque_rho``
+    (:func:`~jaxloco.control.presets.walking_force_qp`: with torque rows for the robots that
+    keep them by default)."""
     if field not in ROBOT_DEFAULTS:
         raise ValueError(f"robot_default: field must be one of {ROBOT_DEFAULTS}; got {field!r}")
     return "${jaxloco_robot:${robot}," + field + "}"
@@ -88,7 +103,9 @@ def _robot_value(name: str, field: str):
     if field == "fall_height":
         return robot.fall_height
     if field in ("mu", "mu_relaxed"):
-        return getattr(robot_force_qp(robot, CLOSED_LOOP_QP), field)
+        return getattr(walking_force_qp(robot), field)
+    if field in ("qp_iterations", "qp_rho", "qp_torque_rho"):
+        return getattr(walking_force_qp(robot), field[3:])
     if field == "impulse_high":
         if robot.length_scale == 1.0:  # the reference robot: the bracket as chosen
             return REFERENCE_IMPULSE_HIGH
@@ -118,8 +135,9 @@ def robot_physics_schema(schema: type):
 def robot_force_qp_schema(schema: type):
     """A default factory for an experiment's ``force_qp`` node (a ``config_schema`` of
     :class:`~jaxloco.control.force_qp.ForceQPParams` with ``CLOSED_LOOP_QP``'s defaults)
-    whose friction pyramids are the config's ``robot``'s."""
-    return lambda: schema(**{f: robot_default(f) for f in ("mu", "mu_relaxed")})
+    whose friction pyramids and solver settings (:data:`FORCE_QP_DEFAULTS`) are the
+    config's ``robot``'s walking force QP's (:func:`~jaxloco.control.presets.walking_force_qp`)."""
+    return lambda: schema(**{f: robot_default(d) for f, d in FORCE_QP_DEFAULTS.items()})
 
 
 class RobotSetup(NamedTuple):

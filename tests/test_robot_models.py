@@ -16,7 +16,12 @@ import numpy as np
 import pytest
 from cli_helpers import run_cli
 
-from jaxloco.control.presets import CLOSED_LOOP_QP, body_shaking_config, walking_config
+from jaxloco.control.presets import (
+    CLOSED_LOOP_QP,
+    CLOSED_LOOP_TORQUE_QP,
+    body_shaking_config,
+    walking_config,
+)
 from jaxloco.control.tasks import frame_quat, task_index
 from jaxloco.control.wblc import make_wblc
 from jaxloco.learning import load_planner
@@ -404,7 +409,10 @@ def test_each_robot_states_its_models_foot_friction_and_the_qp_follows_it(models
         assert (config.force_qp.mu, config.force_qp.mu_relaxed) == pytest.approx(
             (mu, mu_relaxed), rel=1e-12
         )
-    assert walking_config(robot).force_qp.iterations == CLOSED_LOOP_QP.iterations
+    # The warm-started solver settings: with torque rows for the robots that keep them.
+    qp = CLOSED_LOOP_TORQUE_QP if robot.torque_limits_in_qp else CLOSED_LOOP_QP
+    got = walking_config(robot).force_qp
+    assert (got.iterations, got.rho, got.torque_rho) == (qp.iterations, qp.rho, qp.torque_rho)
     wrong = dataclasses.replace(robot, foot_friction=robot.foot_friction + 0.1)
     with pytest.raises(ValueError, match=f"state foot_friction={robot.foot_friction:g}"):
         check_model(wrong, model)
@@ -458,4 +466,8 @@ def test_push_sweep_config_resolves_the_robots_defaults(tmp_path, robot):
     assert cfg["sweep"]["fall_height"] == EXPECTED_DEFAULTS[robot]["fall_height"]
     pyramids = (cfg["force_qp"]["mu"], cfg["force_qp"]["mu_relaxed"])
     assert pyramids == pytest.approx(EXPECTED_FRICTION_PYRAMIDS[robot], rel=1e-12)
-    assert cfg["force_qp"]["iterations"] == CLOSED_LOOP_QP.iterations
+    qp = CLOSED_LOOP_TORQUE_QP if ROBOTS[robot].torque_limits_in_qp else CLOSED_LOOP_QP
+    got = cfg["force_qp"]
+    assert (got["iterations"], got["rho"], got["torque_rho"]) == pytest.approx(
+        (qp.iterations, qp.rho, qp.torque_rho), rel=1e-12
+    )

@@ -86,6 +86,34 @@ def test_three_by_three_blocks_use_jacobi_with_the_same_thresholds():
     check_grads(lambda b: jnp.sum(w * pinv_psd(b @ b.T)), (b,), order=1, modes=("fwd", "rev"))
 
 
+def test_three_row_tasks_whiten_in_closed_form():
+    """3-row levels are whitened by an element-wise Cholesky factor and inverse: against
+    NumPy's ``C^-1 [J, e]`` on tasks of scales 1e-4..1e2, rows switched off, batched, and
+    its gradient against finite differences."""
+    from jaxloco.control.hierarchy import whiten_task
+
+    rng = np.random.default_rng(8)  # its own draws: the module's stream stays as it was
+    jacs = [size * rng.normal(size=(3, 7)) for size in (1e-4, 1.0, 1e2)]
+    jacs.append(np.zeros((3, 7)))
+    jacs = np.stack(jacs)
+    cmds = rng.normal(size=(len(jacs), 3, 2))
+    rows, cmd = whiten_task(jnp.asarray(jacs), jnp.asarray(cmds))
+    for j, e, r, c in zip(jacs, cmds, np.asarray(rows), np.asarray(cmd), strict=True):
+        gram = j @ j.T
+        largest = gram.diagonal().max()
+        jitter = 100 * np.finfo(float).eps * largest if largest > 0 else 1.0
+        inverse = np.linalg.inv(np.linalg.cholesky(gram + jitter * np.eye(3)))
+        np.testing.assert_allclose(r, inverse @ j, rtol=1e-9, atol=1e-12)
+        np.testing.assert_allclose(c, inverse @ e, rtol=1e-9, atol=1e-12)
+    w = jnp.asarray(rng.normal(size=(3, 7)))
+    check_grads(
+        lambda j: jnp.sum(w * whiten_task(j, jnp.ones(3))[0]),
+        (jnp.asarray(jacs[1]),),
+        order=1,
+        modes=("fwd", "rev"),
+    )
+
+
 def test_pinv_psd_gradient_at_constant_rank():
     """The custom JVP (Golub-Pereyra) against finite differences, both modes."""
     b = jnp.asarray(RNG.normal(size=(5, 3)))

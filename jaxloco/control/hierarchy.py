@@ -100,15 +100,39 @@ def whiten_task(jacobian, command):
     dtype = gram.dtype
     largest = jnp.max(jnp.diagonal(gram, axis1=-2, axis2=-1), axis=-1)[..., None, None]
     jitter = jnp.where(largest > 0, 100.0 * jnp.finfo(dtype).eps * largest, 1.0)
-    chol = jnp.linalg.cholesky(gram + jitter * jnp.eye(gram.shape[-1], dtype=dtype))
+    gram = gram + jitter * jnp.eye(gram.shape[-1], dtype=dtype)
     vector = command.ndim == jacobian.ndim - 1
     rhs = command[..., None] if vector else command
-    # C^-1 once, then one product for the rows and the command: LAPACK's triangular solve
-    # costs per column of its right-hand side, and the rows have nv + r columns.
-    inverse = jnp.vectorize(lower_triangular_inverse, signature="(m,m)->(m,m)")(chol)
+    if gram.shape[-1] == 3:
+        inverse = _cholesky_inverse3(gram)
+    else:
+        chol = jnp.linalg.cholesky(gram)
+        # C^-1 once, then one product for the rows and the command: LAPACK's triangular
+        # solve costs per column of its right-hand side, and the rows have nv + r columns.
+        inverse = jnp.vectorize(lower_triangular_inverse, signature="(m,m)->(m,m)")(chol)
     solved = inverse @ jnp.concatenate([jacobian, rhs], axis=-1)
     whitened, command = solved[..., : jacobian.shape[-1]], solved[..., jacobian.shape[-1] :]
     return whitened, command[..., 0] if vector else command
+
+
+def _cholesky_inverse3(gram):
+    """``C^-1`` for the lower Cholesky factor ``C`` of symmetric positive definite 3 x 3
+    matrices ``gram`` (batched over leading axes), in element-wise arithmetic: batched, XLA
+    runs it as one fused loop, where LAPACK takes a factorisation and a triangular solve per
+    matrix (the walking hierarchy whitens seven 3-row levels)."""
+    g = {(i, j): gram[..., i, j] for i in range(3) for j in range(i + 1)}
+    l00 = jnp.sqrt(g[0, 0])
+    l10, l20 = g[1, 0] / l00, g[2, 0] / l00
+    l11 = jnp.sqrt(g[1, 1] - l10 * l10)
+    l21 = (g[2, 1] - l20 * l10) / l11
+    l22 = jnp.sqrt(g[2, 2] - l20 * l20 - l21 * l21)
+    i00, i11, i22 = 1.0 / l00, 1.0 / l11, 1.0 / l22
+    i10 = -l10 * i00 * i11
+    i21 = -l21 * i11 * i22
+    i20 = -(l20 * i00 + l21 * i10) * i22
+    zero = jnp.zeros_like(i00)
+    rows = [(i00, zero, zero), (i10, i11, zero), (i20, i21, i22)]
+    return jnp.stack([jnp.stack(row, -1) for row in rows], -2)
 
 
 def prioritized_accelerations(

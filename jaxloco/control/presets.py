@@ -129,6 +129,22 @@ def robot_force_qp(robot: RobotDescription, params: ForceQPParams | None = None)
 # problems (measurements in docs/control.md).
 CLOSED_LOOP_QP = ForceQPParams(iterations=150, rho=0.02)
 
+# With torque rows (the robots whose legs are kept within their limits in the force QP),
+# each iteration costs more (a 40 x 40 mat-vec instead of 24 x 24 on the G1), and a larger
+# penalty with the rows' own at par converges in half the iterations: along the G1's
+# pushed walks its forces and torques are as far from a converged solve (2000 iterations)
+# as CLOSED_LOOP_QP's, except at the median tick, where both are within 0.2 N m
+# (docs/control.md, measured choices).
+CLOSED_LOOP_TORQUE_QP = ForceQPParams(iterations=75, rho=0.06, torque_rho=1.0)
+
+
+def walking_force_qp(robot: RobotDescription, torque_rows: bool | None = None) -> ForceQPParams:
+    """The walking controller's force QP for ``robot``: ``CLOSED_LOOP_TORQUE_QP`` with torque
+    rows (``torque_rows``; None: the robot's ``torque_limits_in_qp``), else
+    ``CLOSED_LOOP_QP``, with the robot's friction pyramids (:func:`robot_force_qp`)."""
+    rows = robot.torque_limits_in_qp if torque_rows is None else torque_rows
+    return robot_force_qp(robot, CLOSED_LOOP_TORQUE_QP if rows else CLOSED_LOOP_QP)
+
 
 # Damped inverses at the walking hierarchy's first and last levels, truncated between. The
 # first level (the contact constraint) is not projected, so its whitened Gram matrix is the
@@ -140,16 +156,17 @@ WALKING_INVERSES = ("damped",) + ("truncated",) * (len(WALKING) - 2) + ("damped"
 
 
 def walking_config(robot: RobotDescription = DEFAULT_ROBOT, **overrides) -> WBLCConfig:
-    """The walking hierarchy with the warm-started force QP settings (``CLOSED_LOOP_QP``,
-    its friction pyramids the robot's: :func:`robot_force_qp`),
-    damped inverses at its first and last levels (``WALKING_INVERSES``), and the robot's
-    defaults for torque rows in the force QP and the whole-body limit stage
-    (``torque_limits_in_qp``, ``whole_body_limits``; None: the robot's)."""
-    overrides.setdefault("force_qp", robot_force_qp(robot, CLOSED_LOOP_QP))
-    overrides.setdefault("hierarchy_inverse", WALKING_INVERSES)
+    """The walking hierarchy with the warm-started force QP settings (:func:`walking_force_qp`:
+    ``CLOSED_LOOP_QP``, or ``CLOSED_LOOP_TORQUE_QP`` with torque rows; the friction
+    pyramids the robot's), damped inverses at its first and last levels
+    (``WALKING_INVERSES``), and the robot's defaults for torque rows in the force QP and
+    the whole-body limit stage (``torque_limits_in_qp``, ``whole_body_limits``; None: the
+    robot's)."""
     for field in ("torque_limits_in_qp", "whole_body_limits"):
         if overrides.get(field) is None:
             overrides[field] = getattr(robot, field)
+    overrides.setdefault("force_qp", walking_force_qp(robot, overrides["torque_limits_in_qp"]))
+    overrides.setdefault("hierarchy_inverse", WALKING_INVERSES)
     return wblc_config("walking", robot, **overrides)
 
 
