@@ -257,10 +257,10 @@ class AffineStep(NamedTuple):
     coordinate-major: ``f`` is ``(3n,)``, rows ``x``, then ``y``, then ``z``)."""
 
     matrix: jax.Array
-    """(3n, 3n) or, with torque rows, (3n, 3n + m): the map of ``v`` (``z - u``, then the
-    torque rows' ``z_t - u_t``)."""
+    """(3n, 3n): the map of ``v = z - u``; with torque rows (3n + m, 3n + m), the map of
+    ``[v; z_t - u_t]`` to ``[f; rows f]`` (:func:`affine_step_with_torques`)."""
     offset: jax.Array
-    """(3n,) the constant part ``c``."""
+    """(3n,) the constant part ``c`` (with torque rows (3n + m,), ``[c; rows c]``)."""
     moment_map: jax.Array
     """(3, 3n) ``W_ang``: the moment of the forces about the CoM."""
 
@@ -350,10 +350,14 @@ def affine_step_with_torques(
     points, in_contact, com, f_lin, f_ang, params: ForceQPParams, rows
 ) -> AffineStep:
     """The ``f``-step with torque-limit rows ``rows`` ((m, 3n) map of the scaled forces to
-    torques in units of their limits): ``f = M [v; v_t] + c``, ``M`` (3n, 3n + m), from
-    ``1/2 f'Pf + q'f + rho/2 |f - v|^2 + rho_t/2 |rows f - v_t|^2`` subject to the net
-    force (``P``, ``q`` as :func:`affine_step`; ``rho_t = torque_rho * rho``). The rows make
-    it dense: one Cholesky factorisation of the (3n, 3n) ``P + rho I + rho_t rows' rows``."""
+    torques in units of their limits), stacked with the rows' values: ``[f; rows f] = M
+    [v; v_t] + c``, ``M`` (3n + m, 3n + m), from ``1/2 f'Pf + q'f + rho/2 |f - v|^2 +
+    rho_t/2 |rows f - v_t|^2`` subject to the net force (``P``, ``q`` as
+    :func:`affine_step`; ``rho_t = torque_rho * rho``). The rows make it dense: one
+    Cholesky factorisation of the (3n, 3n) ``P + rho I + rho_t rows' rows``. With ``Pi``
+    the equality-constrained inverse and ``X = Pi rows'``, ``M = [[rho Pi, rho_t X],
+    [rho X', rho_t rows X]]``: the ADMM step's one mat-vec gives the forces and their
+    torque rows together."""
     dtype = points.dtype
     n = points.shape[0]
     s = params.force_scale
@@ -381,27 +385,28 @@ def affine_step_with_torques(
     schur = w_lin @ g_lin + jnp.eye(3, dtype=dtype) * jnp.finfo(dtype).eps
     schur_inv = _inv3(schur)
     pi = h_inv - g_lin @ schur_inv @ g_lin.T
-    matrix = jnp.concatenate([rho * pi, rho_t * (pi @ rows.T)], axis=1)
-    return AffineStep(matrix, g_lin @ (schur_inv @ (f_lin / s)) - pi @ q, w_ang)
+    x = pi @ rows.T  # Pi is symmetric: rows Pi = X'
+    matrix = jnp.block([[rho * pi, rho_t * x], [rho * x.T, rho_t * (rows @ x)]])
+    offset = g_lin @ (schur_inv @ (f_lin / s)) - pi @ q
+    return AffineStep(matrix, jnp.concatenate([offset, rows @ offset]), w_ang)
 
 
-def admm_with_torques(matrix, offset, rows, lo, hi, fz_lo, fz_hi, mu, params, warm):
+def admm_with_torques(matrix, offset, lo, hi, fz_lo, fz_hi, mu, params, warm):
     """ADMM on ``[f; rows f] = [z; z_t]`` (OSQP's splitting, over-relaxed): ``z`` projected
     on the points' sets, ``z_t`` clipped to ``[lo, hi]``; the torque rows' scaled duals
-    bounded by ``torque_dual_max`` (see :class:`ForceQPParams`). Returns the state and the
-    last ``f``-step.
+    bounded by ``torque_dual_max`` (see :class:`ForceQPParams`). ``matrix``, ``offset``:
+    :func:`affine_step_with_torques`'s map of ``[v; v_t]`` to ``[f; rows f]``. Returns the
+    state and the last ``f``-step.
 
     As :func:`admm`, the force block is carried as ``t = f_rel + u`` (``z = proj(t)``,
-    ``u = t - z``), and ``rows f`` comes out of the same mat-vec as ``f`` (``[M; rows M]``
-    stacked once per solve): per step one mat-vec and the element-wise updates, the same
-    iterates as the ``(z, u, z_t, u_t)`` form up to round-off."""
+    ``u = t - z``), and ``rows f`` comes out of the same mat-vec as ``f``: per step one
+    mat-vec and the element-wise updates, the same iterates as the ``(z, u, z_t, u_t)``
+    form up to round-off."""
     n = fz_lo.shape[0]
     alpha = params.alpha
     ft_max = params.ft_max / params.force_scale
     dual_max = params.torque_dual_max
     row = jnp.arange(3)[:, None]
-    both = jnp.concatenate([matrix, rows @ matrix], axis=0)  # [f; rows f] from v
-    both_offset = jnp.concatenate([offset, rows @ offset])
 
     def project(t):
         fx, fy, fz = project_point(t[0], t[1], t[2], fz_lo, fz_hi, mu, ft_max)
@@ -409,7 +414,7 @@ def admm_with_torques(matrix, offset, rows, lo, hi, fz_lo, fz_hi, mu, params, wa
 
     def steps(w, zt, ut):
         """``[f; rows f]`` at ``v = [w; z_t - u_t]`` (``w = z - u``)."""
-        y = both @ jnp.concatenate([w.reshape(-1), zt - ut]) + both_offset
+        y = matrix @ jnp.concatenate([w.reshape(-1), zt - ut]) + offset
         return y[: 3 * n].reshape(3, n), y[3 * n :]
 
     def torque_block(g, zt, ut):
@@ -516,7 +521,6 @@ def solve_contact_forces(
         state, f = admm_with_torques(
             step.matrix,
             step.offset,
-            padded,
             jnp.pad(lo, (0, pad)),
             jnp.pad(hi, (0, pad)),
             fz_lo,

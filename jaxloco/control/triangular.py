@@ -14,7 +14,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
-LEAF = 12
+LEAF = 16
 """Blocks of at most this many rows are inverted by LAPACK's triangular solve (the
 fastest leaf for the WBLC's 24 to 35 rows: docs/architecture.md, measured choices)."""
 
