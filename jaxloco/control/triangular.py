@@ -5,7 +5,7 @@ at the tick's sizes (the 24 to 38 dofs of a humanoid, a 24-force QP) is mostly p
 per column of the right-hand side, not arithmetic (docs/architecture.md, measured choices).
 Split in 2 x 2 blocks, ``[[A, 0], [C, B]]^-1 = [[A^-1, 0], [-B^-1 C A^-1, B^-1]]``, the
 inverse is two half-size inverses and two products, and the products are what XLA does
-well; below :data:`LEAF` rows the blocks go to LAPACK. The result is the same inverse to
+well; up to :data:`LEAF` rows the blocks go to LAPACK. The result is the same inverse to
 float round-off (relative error 1e-7 in float32; tested against the triangular solve).
 """
 
@@ -15,8 +15,9 @@ import jax
 import jax.numpy as jnp
 
 LEAF = 16
-"""Blocks of at most this many rows are inverted by LAPACK's triangular solve (the
-fastest leaf for the WBLC's 24 to 35 rows: docs/architecture.md, measured choices)."""
+"""Blocks of at most this many rows are inverted by LAPACK's triangular solve: the 24 to
+38 rows of the WBLC's factors split into leaves of 8 to 12, the fastest, and a task's 12
+or 14 whitened rows go in one call (docs/architecture.md, measured choices)."""
 
 
 def lower_triangular_inverse(lower: jax.Array, leaf: int = LEAF) -> jax.Array:

@@ -486,7 +486,13 @@ def wblc_tick(
         torque_over_limit=jnp.abs(limited.torques) > ctrl.torque_limits * (1 + 1e-5),
         torque_limit=limited,
         task_relaxation=Segments.stack(
-            {n: t.jacobian @ limited.acceleration_change for n, t in terms.items()}
+            {
+                # Without the limit stage nothing gives way: no products with zeros.
+                n: t.jacobian @ limited.acceleration_change
+                if cfg.whole_body_limits
+                else jnp.zeros(t.jacobian.shape[0], dtype)
+                for n, t in terms.items()
+            }
         ),
         task_errors=Segments.stack({n: t.error for n, t in terms.items()}),
         level_residuals=Segments(
