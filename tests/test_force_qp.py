@@ -281,6 +281,21 @@ def test_params_validation():
         ForceQPParams(iterations=0)
 
 
+def closed_loop_sequence(rng, ticks: int = 600):
+    """A 1 kHz sequence of problems on one contact set (both feet, 8 points): a CoM force
+    swinging sideways, weight shifting to one foot over 0.6 s. Returns ``(points,
+    in_contact, com)`` and ``[f_lin, f_ang, fz_max]`` stacked over the ticks."""
+    points, _contact, com, _f, _a = contact_problem(rng)
+    t = np.linspace(0.0, 1.0, ticks)
+    f_lin = 135.9 * np.stack([2.0 * np.sin(2 * np.pi * t), 1.5 * t, 9.81 + 0.5 * np.cos(3 * t)], -1)
+    f_ang = np.stack([10 * np.sin(4 * t), 5 * t, np.zeros_like(t)], -1)
+    fz_max = np.stack(
+        [np.r_[np.full(4, 3000.0), np.full(4, 3000.0 * (1 - s) + 5.0 * s)] for s in t]
+    )
+    args = (jnp.asarray(points), jnp.asarray(np.ones(8, bool)), jnp.asarray(com))
+    return args, [jnp.asarray(a) for a in (f_lin, f_ang, fz_max)]
+
+
 def test_warm_started_closed_loop_settings_track_the_cold_solution():
     """The walking preset's fewer iterations rely on each tick starting from the last
     tick's solution: along a sequence of problems at 1 kHz (a CoM force swinging sideways,
@@ -291,18 +306,7 @@ def test_warm_started_closed_loop_settings_track_the_cold_solution():
 
     assert walking_config().force_qp == CLOSED_LOOP_QP
     assert CLOSED_LOOP_QP.iterations < ForceQPParams().iterations
-    points, _contact, com, _f, _a = contact_problem(np.random.default_rng(4))
-    contact = np.ones(8, bool)
-    ticks = np.linspace(0.0, 1.0, 600)
-    f_lin = 135.9 * np.stack(
-        [2.0 * np.sin(2 * np.pi * ticks), 1.5 * ticks, 9.81 + 0.5 * np.cos(3 * ticks)], -1
-    )
-    f_ang = np.stack([10 * np.sin(4 * ticks), 5 * ticks, np.zeros_like(ticks)], -1)
-    fz_max = np.stack(
-        [np.r_[np.full(4, 3000.0), np.full(4, 3000.0 * (1 - t) + 5.0 * t)] for t in ticks]
-    )
-    seq = [jnp.asarray(a) for a in (f_lin, f_ang, fz_max)]
-    args = (jnp.asarray(points), jnp.asarray(contact), jnp.asarray(com))
+    args, seq = closed_loop_sequence(np.random.default_rng(4))
     cold_params = ForceQPParams(iterations=2000)
     cold = jax.vmap(lambda fl, fa, fz: solve_contact_forces(*args, fl, fa, cold_params, fz_max=fz))(
         *seq
@@ -331,18 +335,7 @@ def test_warm_started_torque_row_settings_track_the_cold_solution():
     from jaxloco.control.presets import CLOSED_LOOP_TORQUE_QP
 
     rng = np.random.default_rng(4)
-    points, _contact, com, _f, _a = contact_problem(rng)
-    contact = np.ones(8, bool)
-    ticks = np.linspace(0.0, 1.0, 600)
-    f_lin = 135.9 * np.stack(
-        [2.0 * np.sin(2 * np.pi * ticks), 1.5 * ticks, 9.81 + 0.5 * np.cos(3 * ticks)], -1
-    )
-    f_ang = np.stack([10 * np.sin(4 * ticks), 5 * ticks, np.zeros_like(ticks)], -1)
-    fz_max = np.stack(
-        [np.r_[np.full(4, 3000.0), np.full(4, 3000.0 * (1 - t) + 5.0 * t)] for t in ticks]
-    )
-    seq = [jnp.asarray(a) for a in (f_lin, f_ang, fz_max)]
-    args = (jnp.asarray(points), jnp.asarray(contact), jnp.asarray(com))
+    args, seq = closed_loop_sequence(rng)
     n, m = 8, 12
     g = np.zeros((m, 3 * n))
     for foot in range(2):
@@ -357,7 +350,7 @@ def test_warm_started_torque_row_settings_track_the_cold_solution():
         )(*seq)
 
     free = np.asarray(cold(ForceQPParams(iterations=1000)).forces)
-    torques = offset - free.transpose(0, 2, 1).reshape(len(ticks), -1) @ g.T
+    torques = offset - free.transpose(0, 2, 1).reshape(len(free), -1) @ g.T
     limit = np.maximum(0.8 * np.abs(torques).max(axis=0), 5.0)  # each binds somewhere
     rows = TorqueRows(jnp.asarray(g), jnp.asarray(offset), jnp.asarray(limit))
     converged = cold(ForceQPParams(iterations=3000), rows)
