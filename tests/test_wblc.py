@@ -867,16 +867,18 @@ def test_alternatives_are_the_task_that_is_on(valkyrie):
     contact = jnp.asarray([1.0, 0.0])
     v = jnp.asarray(np.random.default_rng(2).normal(scale=0.2, size=model.nv))
 
-    def levels(c, refs):
-        snap = c.snapshot(jnp.asarray(data.qpos), v)
+    def levels(c, refs, snap):
         terms = wblc_module.task_stage(c, snap, refs, contact, c.default_gains())
         hier = wblc_module.hierarchy_stage(c, snap, terms, refs["cam"].weight)
         return hier, wblc_module.alternatives_overlap(c.config, terms)
 
-    run = jax.jit(
-        lambda refs, both: (levels(ctrl, refs), levels(stacked, refs), levels(ctrl, both))
-    )
-    (alt, alt_overlap), (ref, ref_overlap), (_, both_overlap) = run(swing, both)
+    def run(refs, both):
+        snap = ctrl.snapshot(jnp.asarray(data.qpos), v)  # one model: one snapshot for all
+        terms = wblc_module.task_stage(ctrl, snap, both, contact, ctrl.default_gains())
+        overlap = wblc_module.alternatives_overlap(ctrl.config, terms)
+        return levels(ctrl, refs, snap), levels(stacked, refs, snap), overlap
+
+    (alt, alt_overlap), (ref, ref_overlap), both_overlap = jax.jit(run)(swing, both)
     assert float(jnp.max(jnp.abs(ref.qdd))) > 1.0  # a real swing command, not a trivial match
     np.testing.assert_allclose(alt.qdd, ref.qdd, rtol=1e-7, atol=1e-7)
     np.testing.assert_allclose(alt.projector, ref.projector, atol=1e-9)
