@@ -130,11 +130,12 @@ def robot_force_qp(robot: RobotDescription, params: ForceQPParams | None = None)
 CLOSED_LOOP_QP = ForceQPParams(iterations=150, rho=0.02)
 
 # With torque rows (the robots whose legs are kept within their limits in the force QP),
-# each iteration costs more (a 40 x 40 mat-vec instead of 24 x 24 on the G1), and a larger
-# penalty with the rows' own at par converges in half the iterations: along the G1's
-# pushed walks its forces and torques are as far from a converged solve (2000 iterations)
-# as CLOSED_LOOP_QP's, except at the median tick, where both are within 0.2 N m
-# (docs/control.md, measured choices).
+# each iteration costs more (a 40 x 40 mat-vec instead of 24 x 24 on the G1). Half the
+# iterations, at a larger penalty with the rows' own equal to it: along the G1's pushed
+# walks the torques are about as far from a converged solve (2000 iterations) as with
+# CLOSED_LOOP_QP's settings (within 0.2 N m at the median tick, 16-25 N m at the 99th
+# percentile for both); where the limits bind on most ticks the forces are further off
+# (median 0.39 N against 0.12). Measurements in docs/control.md.
 CLOSED_LOOP_TORQUE_QP = ForceQPParams(iterations=75, rho=0.06, torque_rho=1.0)
 
 
