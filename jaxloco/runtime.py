@@ -45,7 +45,7 @@ one robot, and leaves out the same loop batched, which runs faster dispatched
 (docs/architecture.md, measured choices)."""
 
 
-def configure(small_loop_bytes: int = SMALL_LOOP_BYTES) -> None:
+def configure(small_loop_bytes: int = SMALL_LOOP_BYTES, fusion_emitters: bool = False) -> None:
     """Set jaxloco's XLA:CPU options for this process, through ``XLA_FLAGS``.
 
     Call it before JAX runs its first computation (the ``jaxloco`` command, the experiments,
@@ -56,6 +56,11 @@ def configure(small_loop_bytes: int = SMALL_LOOP_BYTES) -> None:
       deadlocked (0% CPU, stuck in ``block_until_ready``) on vmapped programs with several
       independent LAPACK calls; turning it off fixed every such hang we reproduced.
     - ``xla_cpu_small_while_loop_byte_threshold`` (:data:`SMALL_LOOP_BYTES`).
+    - ``--xla_cpu_use_fusion_emitters=false`` unless ``fusion_emitters``: XLA:CPU's
+      MLIR-based fusion emitters build an MLIR module per fused kernel, and the controller's
+      programs have about a thousand kernels; its LLVM IR emitters compile the walking
+      controller in about two thirds of the time, and the programs they make run within a
+      few percent as fast (docs/architecture.md, measured choices).
 
     Called after JAX's backends exist (after a first computation), it changes nothing
     that takes effect.
@@ -66,6 +71,8 @@ def configure(small_loop_bytes: int = SMALL_LOOP_BYTES) -> None:
     wanted = []
     if "xla_cpu_enable_concurrency_optimized_scheduler" not in flags:
         wanted.append("--xla_cpu_enable_concurrency_optimized_scheduler=false")
+    if "xla_cpu_use_fusion_emitters" not in flags:
+        wanted.append(f"--xla_cpu_use_fusion_emitters={str(fusion_emitters).lower()}")
     if "xla_backend_extra_options" not in flags:
         wanted.append(
             f"--xla_backend_extra_options=xla_cpu_small_while_loop_byte_threshold={small_loop_bytes}"

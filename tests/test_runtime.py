@@ -40,6 +40,7 @@ def test_import_changes_nothing_and_configure_sets_the_flags():
     assert seen["imported"] == {"flags": None, "backends": False}
     assert "--xla_cpu_enable_concurrency_optimized_scheduler=false" in seen["after"]
     assert "xla_cpu_small_while_loop_byte_threshold=16000" in seen["after"]
+    assert "--xla_cpu_use_fusion_emitters=false" in seen["after"]
 
 
 def test_configure_keeps_the_users_flags():
@@ -48,6 +49,12 @@ def test_configure_keeps_the_users_flags():
     assert seen["after"].split().count(mine) == 1
     assert seen["after"].count("xla_backend_extra_options") == 1
     assert "concurrency_optimized_scheduler=false" in seen["after"]
+
+
+def test_configure_keeps_the_users_choice_of_emitters():
+    seen = probe("--xla_cpu_use_fusion_emitters=true")
+    assert seen["after"].count("xla_cpu_use_fusion_emitters") == 1
+    assert "--xla_cpu_use_fusion_emitters=true" in seen["after"]
 
 
 def test_configure_rejects_a_negative_threshold():
