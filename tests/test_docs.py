@@ -2,6 +2,7 @@
 that defines every name it uses, and every page's script runs in the suite: as written, or
 on CI-sized problems (the same calls, smaller)."""
 
+import os
 import re
 import signal
 import subprocess
@@ -94,9 +95,13 @@ def test_the_samples_run(name, tmp_path):
     path.write_text(ci_sized(name, text) if name in CI_SIZED else text)
     # XLA:CPU has been seen to hang (rarely, under a loaded machine): past the limit the
     # script is aborted with every thread's Python stack in the failure (faulthandler).
+    # The run's compile cache (tests/conftest.py): a program a page builds twice (sweep.md's
+    # limit search and sweep compile the same tick) is read back the second time.
+    env = {**os.environ, "JAX_COMPILATION_CACHE_DIR": os.environ["JAXLOCO_TEST_CACHE_DIR"]}
     proc = subprocess.Popen(
         [sys.executable, "-X", "faulthandler", str(path)],
         cwd=tmp_path,
+        env=env,
         stdout=subprocess.PIPE,
         stderr=subprocess.PIPE,
         text=True,

@@ -327,7 +327,11 @@ def valkyrie():
     refs = jax.jit(ctrl.hold_references)(jnp.asarray(data.qpos))  # one program, not eager
     for name in ("left_foot_ori", "right_foot_ori", "left_foot_pos", "right_foot_pos"):
         refs[name] = refs[name].replace(weight=jnp.zeros(()))
-    tick = jax.jit(lambda q, v, refs, prev, gains: ctrl(q, v, refs, jnp.ones(2), gains, prev))
+    both_feet = jnp.ones(2)
+    # The contact set is an argument (both feet by default): one program for every test.
+    tick = jax.jit(
+        lambda q, v, refs, prev, gains, contact=both_feet: ctrl(q, v, refs, contact, gains, prev)
+    )
     return model, data, ctrl, refs, tick
 
 
@@ -475,7 +479,7 @@ def test_the_tick_is_its_four_stages(valkyrie):
     tick's torques; stage 1 switches contact rows by the contact set, not the reference."""
     from jaxloco.control import wblc as w
 
-    model, data, ctrl, refs, _ = valkyrie
+    model, data, ctrl, refs, tick = valkyrie
     q = jnp.asarray(data.qpos)
     v = jnp.asarray(np.random.default_rng(3).normal(0, 0.1, model.nv))
     contact = jnp.asarray([1.0, 0.0])
@@ -490,7 +494,7 @@ def test_the_tick_is_its_four_stages(valkyrie):
         return w.torque_stage(ctrl, snap, hier, qdd_task, forces.solution.forces), terms
 
     staged, terms = jax.jit(by_stages)(q, v)
-    whole = jax.jit(lambda q, v: ctrl(q, v, refs, contact, gains, prev))(q, v)
+    whole = tick(q, v, refs, prev, gains, contact)
     np.testing.assert_allclose(staged.torques, whole.torques, rtol=1e-10, atol=1e-10)
     right = next(t for t in ctrl.config.tasks if t.name == "right_contact")
     assert float(jnp.abs(terms[right.name].jacobian).max()) == 0.0
