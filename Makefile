@@ -23,7 +23,7 @@ $(STAMP): pyproject.toml constraints.txt
 	@touch $(STAMP)
 
 # The main job on embedded defaults: the limit search (the largest recovered impulse for
-# 8 directions x 5 gait phases, replanning on and off; about 8 min on 2 cores from a fresh
+# 8 directions x 5 gait phases, replanning on and off; about 6 min on 2 cores from a fresh
 # clone, .venv and compile cache included). Outputs and the report land in hydra's run
 # directory under outputs/; running it again there resumes.
 run: $(STAMP)
