@@ -46,6 +46,7 @@ from jaxloco.runtime import (
     write_json,
 )
 from jaxloco.sim.mjx_loop import PhysicsParams
+from jaxloco.sim.mujoco_c import PackedController
 from jaxloco.sim.push import Push
 from jaxloco.sim.render import plot_top_view, render_gif, stance_footsteps
 from jaxloco.sim.scenarios import local_com_states, simulate_walk
@@ -140,7 +141,7 @@ def run(cfg: PushRecoveryConfig, out_dir: Path) -> dict:
         k: make_walking_controller(model, config=config, gait=g, planner=planner, robot=robot)
         for k, g in variants.items()
     }
-    steps = {k: jax.jit(c.step) for k, c in ctrls.items()}  # one compile per variant
+    steps = {k: PackedController(c.step) for k, c in ctrls.items()}  # one compile per variant
     results, runs = {}, {}
     base = simulate_walk(
         model,

@@ -169,7 +169,7 @@ def test_the_split_step_is_mj_step_and_the_controller_sees_the_state_it_acts_on(
     runs = []
     for engine in (False, True):
         data = random_state(model, 3, qvel_scale=0.3)
-        log, _ = run_closed_loop(model, data, pd, None, 200, engine=engine)
+        log, _ = run_closed_loop(model, data, pd, None, 200, engine=engine, pure=False)
         runs.append(log)
     np.testing.assert_array_equal(runs[0].qpos, runs[1].qpos)
     np.testing.assert_array_equal(runs[0].ctrl, runs[1].ctrl)
@@ -177,7 +177,7 @@ def test_the_split_step_is_mj_step_and_the_controller_sees_the_state_it_acts_on(
     rk4 = load_valkyrie()
     rk4.opt.integrator = mujoco.mjtIntegrator.mjINT_RK4
     with pytest.raises(ValueError, match="RK4"):
-        run_closed_loop(rk4, mujoco.MjData(rk4), pd, None, 1, engine=True)
+        run_closed_loop(rk4, mujoco.MjData(rk4), pd, None, 1, engine=True, pure=False)
 
 
 def test_jdot_qdot_matches_finite_differences():

@@ -455,7 +455,7 @@ def test_sharded_over_two_host_devices_matches_one_device(tmp_path):
 
 
 def test_tree_layout_packs_one_array_per_dtype_and_back():
-    from jaxloco.sweep.backends import TreeLayout
+    from jaxloco.sim.packing import TreeLayout
 
     tree = {
         "f": jnp.arange(6.0, dtype=jnp.float32).reshape(2, 3),
@@ -480,7 +480,7 @@ def test_tree_layout_packs_one_array_per_dtype_and_back():
 
 
 def test_host_gather_packs_live_arrays_into_alternating_buffers():
-    from jaxloco.sweep.backends import HostGather
+    from jaxloco.sim.packing import HostGather
 
     rng = np.random.default_rng(0)
     time = np.array([0.5, 1.25])

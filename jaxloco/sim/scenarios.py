@@ -18,7 +18,7 @@ from jaxloco.dynamics.engine_terms import check_same_dynamics, engine_terms
 from jaxloco.locomotion.walking import WalkingController
 from jaxloco.locomotion.walking_log import WalkingLog
 from jaxloco.sim.mjx_loop import PhysicsParams, physics_model
-from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
+from jaxloco.sim.mujoco_c import ClosedLoopLog, PackedController, run_closed_loop
 from jaxloco.sim.push import Push, PushArrays, apply_push_c, body_index
 
 
@@ -55,8 +55,9 @@ def simulate_walk(
     """Walk from the robot's keyframe for ``duration`` s (or until ``max_steps`` steps have
     begun), turning by ``turns`` (rad per step) and pushed by ``pushes``.
 
-    ``step``: ``jax.jit(ctrl.step)`` to reuse across runs (default: jitted here, so each
-    call traces again; the persistent compile cache saves the compile). ``fall_height``:
+    ``step``: ``PackedController(ctrl.step)`` (:class:`~.mujoco_c.PackedController`) to
+    reuse its compiled tick across runs (default: made here, so each call traces again; the
+    persistent compile cache saves the compile). ``fall_height``:
     base height (m) that ends the run as a fall (default: the robot's). ``watch(model,
     data)``: opens a view of the run (e.g. :func:`.viewer.open_viewer`) and returns what
     is called after every physics step; its ``close()``, if it has one, runs at the end.
@@ -92,7 +93,7 @@ def simulate_walk(
         log, _ = run_closed_loop(
             sim_model,
             data,
-            jax.jit(ctrl.step) if step is None else step,
+            PackedController(ctrl.step) if step is None else step,
             state,
             int(round(duration / model.opt.timestep)),
             stop=lambda d: d.qpos[2] < fall_height,

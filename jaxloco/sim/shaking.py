@@ -16,7 +16,7 @@ from flax import struct
 from jaxloco.control.shaking import ShakingParams, shaking_reference
 from jaxloco.control.wblc import WBLCConfig, make_wblc
 from jaxloco.robots import DEFAULT_ROBOT, RobotDescription
-from jaxloco.sim.mujoco_c import ClosedLoopLog, run_closed_loop
+from jaxloco.sim.mujoco_c import ClosedLoopLog, PackedController, run_closed_loop
 
 
 @struct.dataclass
@@ -96,6 +96,15 @@ def shaking_simulator(
         )
         return out.torques, out.qp_state, logged
 
+    def tick(t, qpos, qvel, carry, engine):
+        # The gains and the frequency ride in the carry: arguments of the compiled tick,
+        # not constants baked into it.
+        prev, gains, frequency = carry
+        torques, qp_state, logged = step(t, qpos, qvel, prev, gains, frequency, engine)
+        return torques, (qp_state, gains, frequency), logged
+
+    controller = PackedController(tick)
+
     def simulate(duration, gains=None, frequency_hz=None, progress=False) -> ClosedLoopLog:
         if duration <= 0:
             raise ValueError(f"simulate_shaking: duration must be > 0 s; got {duration}")
@@ -109,8 +118,8 @@ def shaking_simulator(
         log, _ = run_closed_loop(
             model,
             data,
-            lambda t, qpos, qvel, prev, engine: step(t, qpos, qvel, prev, g, f, engine),
-            ctrl.initial_qp_state(),
+            controller,
+            (ctrl.initial_qp_state(dtype), g, f),
             int(round(duration / model.opt.timestep)),
             stop=lambda d: d.qpos[2] < fall_height,
             progress=progress,

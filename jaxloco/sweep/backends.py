@@ -30,6 +30,7 @@ from jaxloco.dynamics.quiet_mjx import mjx
 from jaxloco.locomotion.walking import WalkingController, WalkingState
 from jaxloco.runtime import single_thread_compiler_options
 from jaxloco.sim.mjx_loop import LoopState, closed_loop_step, mjx_data_from_c
+from jaxloco.sim.packing import HostGather, TreeLayout
 from jaxloco.sim.push import PushArrays, push_force
 from jaxloco.sweep.outcome import Outcome, init_outcome, mark_fallen, update_outcome
 from jaxloco.sweep.starts import STATE_SPEC
@@ -47,94 +48,6 @@ class ChunkStarts:
     """Each run's walking-controller state (leading axis: runs)."""
     pushes: PushArrays
     """Each run's push, fields of shape (B,), world frame."""
-
-
-@dataclasses.dataclass(frozen=True)
-class TreeLayout:
-    """Where each leaf of a pytree lives when the tree is packed into one flat array per
-    dtype (static: shapes, dtypes and structure; hashable, so it can key a compile cache).
-
-    Not ``jax.flatten_util.ravel_pytree``: that casts every leaf to one common dtype, and
-    the outcome's integer counters and boolean flags keep their own here."""
-
-    treedef: jax.tree_util.PyTreeDef
-    """The pytree's structure."""
-    shapes: tuple[tuple[int, ...], ...]
-    """Each leaf's shape, in leaf order."""
-    dtypes: tuple[str, ...]
-    """Each leaf's dtype name, in leaf order."""
-
-    @classmethod
-    def of(cls, tree) -> TreeLayout:
-        leaves, treedef = jax.tree.flatten(tree)
-        return cls(
-            treedef,
-            tuple(tuple(np.shape(x)) for x in leaves),
-            tuple(np.dtype(x.dtype).name for x in leaves),
-        )
-
-    def _groups(self):
-        groups = {}
-        for k, dtype in enumerate(self.dtypes):
-            groups.setdefault(dtype, []).append(k)
-        return groups
-
-    def pack(self, tree) -> dict:
-        """``{dtype name: (size,) array}`` of the tree's leaves, raveled in leaf order."""
-        leaves = jax.tree.leaves(tree)
-        return {
-            dtype: jnp.concatenate([jnp.ravel(leaves[k]) for k in ids])
-            for dtype, ids in self._groups().items()
-        }
-
-    def unpack(self, packed: dict):
-        leaves = [None] * len(self.shapes)
-        for dtype, ids in self._groups().items():
-            offset = 0
-            for k in ids:
-                size = int(np.prod(self.shapes[k], dtype=int))
-                leaves[k] = packed[dtype][offset : offset + size].reshape(self.shapes[k])
-                offset += size
-        return jax.tree.unflatten(self.treedef, leaves)
-
-
-class HostGather:
-    """Copies a tuple of host arrays (leading axis: robots) into one contiguous ``(n,
-    size)`` float64 buffer, in :class:`TreeLayout` order, so a tick passes them to the
-    jitted controller as one array instead of converting each of MuJoCo's bound fields on
-    its own (docs/architecture.md, measured choices). Two buffers alternate, so
-    the one a tick reads is never rewritten while that tick may still run."""
-
-    def __init__(self, arrays: tuple):
-        self.arrays = arrays
-        n = len(arrays[0])
-        self.layout = TreeLayout.of(tuple(np.zeros(a.shape[1:], np.float64) for a in arrays))
-        sizes = [int(np.prod(a.shape[1:], dtype=int)) for a in arrays]
-        total = sum(sizes)
-        self._buffers = [np.zeros((n, total)), np.zeros((n, total))]
-        offsets = np.cumsum([0, *sizes])
-        # Views of each buffer shaped like each array: one copy per field, no temporaries.
-        self._views = [
-            [
-                buf[:, lo:hi].reshape(a.shape)
-                for a, lo, hi in zip(arrays, offsets[:-1], offsets[1:], strict=True)
-            ]
-            for buf in self._buffers
-        ]
-        self._next = 0
-
-    def gather(self) -> np.ndarray:
-        """The arrays' current values, packed: ``(n, size)``."""
-        views = self._views[self._next]
-        for view, array in zip(views, self.arrays, strict=True):
-            np.copyto(view, array)
-        buf = self._buffers[self._next]
-        self._next = 1 - self._next
-        return buf
-
-    def unpack(self, row) -> tuple:
-        """Inside the jitted (vmapped) tick: one robot's row back into the arrays."""
-        return self.layout.unpack({"float64": row})
 
 
 def mjx_loop_states(sim_model: mujoco.MjModel, starts: ChunkStarts, mx=None) -> LoopState:
@@ -181,16 +94,19 @@ class CBatchBackend:
         # about 50 small compiles per chunk size in every new process).
         self._pack = {}
         self._unpack = {}
+        self._layouts = {}  # packed layout per chunk input layout
 
-    def _tick_for(self, layout: TreeLayout, host: TreeLayout):
-        """The vmapped tick over packed states: ``(host, packed) -> (torques and push
+    def _tick_for(self, layout: TreeLayout, host: TreeLayout, n: int):
+        """The vmapped tick over ``n`` robots' packed states: ``(host, packed) -> (torques and push
         forces, packed)``; ``host`` each robot's row of ``(time, alive, engine)`` gathered
         by :class:`HostGather` (``host`` its layout), ``engine`` what MuJoCo C computed for
         the robot's state (:class:`~jaxloco.dynamics.engine_terms.EngineTerms`). Packing
         the controller state, the outcome and the push into one array per dtype, and the
         host's arrays into one, keeps the per-tick call to a handful of arrays (each array
-        passed to a jitted call is converted on its own)."""
-        key = (layout, host)
+        passed to a jitted call is converted on its own). For one robot the tick is not
+        vmapped: the gait's conds stay conds (under ``vmap`` both branches run, the step
+        planner's included), a shorter tick."""
+        key = (layout, host, n == 1)
         if key not in self._ticks:
             ctrl = self._ctrl
 
@@ -211,11 +127,31 @@ class CBatchBackend:
                 actions = jnp.concatenate([torques, push_force(push, t)])
                 return actions, packed
 
+            def one_robot(rows, packed):
+                actions, packed = tick(rows[0], {k: v[0] for k, v in packed.items()})
+                return actions[None], {k: v[None] for k, v in packed.items()}
+
             # Single-threaded kernels: faster on a sweep worker's one core. The same program
             # in every process, so outcomes do not depend on where a chunk runs.
-            options = single_thread_compiler_options()
-            self._ticks[key] = jax.jit(jax.vmap(tick), compiler_options=options)
+            options = single_thread_compiler_options(batch=n)
+            fn = one_robot if n == 1 else jax.vmap(tick)
+            self._ticks[key] = jax.jit(fn, compiler_options=options)
         return self._ticks[key]
+
+    def _layout_for(self, cstate, pushes) -> TreeLayout:
+        """The packed layout of one robot's ``(controller state, outcome, push)``, from the
+        chunk's controller states and pushes (leading axis: robots); kept per input layout,
+        as tracing ``init_outcome`` again costs milliseconds a run."""
+        key = TreeLayout.of((cstate, pushes))
+        if key not in self._layouts:
+            one = jax.eval_shape(
+                lambda c, p: (c, init_outcome(c), p),
+                *jax.tree.map(
+                    lambda x: jax.ShapeDtypeStruct(np.shape(x)[1:], x.dtype), (cstate, pushes)
+                ),
+            )
+            self._layouts[key] = TreeLayout.of(one)
+        return self._layouts[key]
 
     def run(self, starts: ChunkStarts, horizon_steps: int, progress=None) -> Outcome:
         m = self.model
@@ -233,20 +169,15 @@ class CBatchBackend:
         alive = np.ones(n, bool)
         alive_f = np.ones(n)  # alive, as the float the host buffer carries
         host = HostGather((time, alive_f, *engine))
-        cstate = jax.tree.map(jnp.asarray, starts.controller)
-        pushes = PushArrays(*(jnp.asarray(x) for x in starts.pushes))
-        one = jax.eval_shape(
-            lambda c, p: (c, init_outcome(c), p),
-            *jax.tree.map(lambda x: jax.ShapeDtypeStruct(x.shape[1:], x.dtype), (cstate, pushes)),
-        )
-        layout = TreeLayout.of(one)
-        tick = self._tick_for(layout, host.layout)
+        pushes = PushArrays(*starts.pushes)
+        layout = self._layout_for(starts.controller, pushes)
+        tick = self._tick_for(layout, host.layout, n)
         if layout not in self._pack:
             self._pack[layout] = jax.jit(
                 jax.vmap(lambda c, p: layout.pack((c, init_outcome(c), p)))
             )
             self._unpack[layout] = jax.jit(jax.vmap(lambda packed: layout.unpack(packed)[1]))
-        packed = self._pack[layout](cstate, pushes)
+        packed = self._pack[layout](starts.controller, pushes)
         nu = m.nu
         t0 = starts.times.copy()
         fall_time = np.full(n, np.inf)
