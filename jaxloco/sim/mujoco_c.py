@@ -160,59 +160,61 @@ class PackedController:
         carry_layout = TreeLayout.of(carry)
         key = (carry_layout, host.layout, engine)
         if key not in self._ticks:
-            self._ticks[key] = self._compile_tick(carry, carry_layout, host, engine)
-        tick, log_layout = self._ticks[key]
-        return _BoundTick(clock, host, tick, carry_layout, log_layout, carry)
+            self._ticks[key] = self._jit_tick(carry_layout, host, engine)
+        tick, logs = self._ticks[key]
+        return _BoundTick(clock, host, tick, carry_layout, logs, carry)
 
-    def _compile_tick(self, carry, carry_layout: TreeLayout, host: HostGather, engine: bool):
+    def _jit_tick(self, carry_layout: TreeLayout, host: HostGather, engine: bool):
+        """The jitted tick and a dict that its trace fills with the log's layout (one trace,
+        at the first call, gives both)."""
         controller = self.controller
+        logs = {}
 
-        def call(row, packed):
+        def tick(row, packed):
             t, *values = host.unpack(row)
             state = carry_layout.unpack(packed)
             if engine:
                 terms = EngineTerms(*values)
-                return controller(t, terms.qpos, terms.qvel, state, engine=terms)
-            return controller(t, *values, state)
-
-        packed = jax.eval_shape(carry_layout.pack, carry)
-        try:
-            _, carry_out, log = jax.eval_shape(call, host.gather()[0], packed)
-        except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError) as e:
-            raise TypeError(
-                "run_closed_loop: the controller is not a pure JAX function; pass pure=False "
-                "to call it as a Python function"
-            ) from e
-        out_layout = TreeLayout.of(carry_out)
-        if out_layout != carry_layout:
-            raise ValueError(
-                "run_closed_loop: the controller returns a carry of another structure, shape "
-                f"or dtype than it is given: {out_layout.describe()} against "
-                f"{carry_layout.describe()}"
-            )
-        log_layout = TreeLayout.of(log)
-
-        def tick(row, packed):
-            torques, state, log = call(row, packed)
-            return torques, carry_layout.pack(state), log_layout.pack(log)
+                torques, state, log = controller(t, terms.qpos, terms.qvel, state, engine=terms)
+            else:
+                torques, state, log = controller(t, *values, state)
+            out_layout = TreeLayout.of(state)
+            if out_layout != carry_layout:
+                raise ValueError(
+                    "run_closed_loop: the controller returns a carry of another structure, "
+                    f"shape or dtype than it is given: {out_layout.describe()} against "
+                    f"{carry_layout.describe()}"
+                )
+            logs["layout"] = TreeLayout.of(log)
+            return torques, carry_layout.pack(state), logs["layout"].pack(log)
 
         # One robot: single-threaded kernels, XLA's own matrix products (runtime's notes).
-        return jax.jit(tick, compiler_options=single_thread_compiler_options(batch=1)), log_layout
+        return jax.jit(tick, compiler_options=single_thread_compiler_options(batch=1)), logs
 
 
 class _BoundTick:
     """One run's tick: the packed carry stays on the device between ticks."""
 
-    def __init__(self, clock, host, tick, carry_layout, log_layout, carry):
+    def __init__(self, clock, host, tick, carry_layout, logs, carry):
         self.clock, self.host, self.tick = clock, host, tick
-        self.carry_layout, self.log_layout = carry_layout, log_layout
+        self.carry_layout, self._logs = carry_layout, logs
         self.packed = carry_layout.pack(carry, xp=np)
 
     def __call__(self, t: float):
         """``(torques, packed log)`` for the bound data's current state at time ``t``."""
         self.clock[0] = t
-        torques, self.packed, log = self.tick(self.host.gather()[0], self.packed)
+        try:
+            torques, self.packed, log = self.tick(self.host.gather()[0], self.packed)
+        except (jax.errors.TracerArrayConversionError, jax.errors.ConcretizationTypeError) as e:
+            raise TypeError(
+                "run_closed_loop: the controller is not a pure JAX function; pass pure=False "
+                "to call it as a Python function"
+            ) from e
         return torques, log
+
+    @property
+    def log_layout(self) -> TreeLayout:
+        return self._logs["layout"]
 
     def log(self, packed: dict):
         """One tick's log as the controller's pytree (numpy)."""
