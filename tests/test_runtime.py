@@ -105,3 +105,21 @@ def test_the_library_imports_mjx_without_the_warp_line(code):
     )  # fmt: skip
     assert out.returncode == 0, out.stderr[-2000:]
     assert out.stdout.strip() == "ok"
+
+
+def test_one_robot_programs_leave_matrix_products_to_xla():
+    """Batched programs keep YNNPACK's fused products; a program for one robot compiles
+    them as XLA's own kernels, and the option is one XLA accepts (the program runs)."""
+    import jax
+    import jax.numpy as jnp
+
+    from jaxloco.runtime import single_thread_compiler_options
+
+    batched = single_thread_compiler_options(batch=64)
+    one = single_thread_compiler_options(batch=1)
+    assert batched == {"xla_cpu_multi_thread_eigen": False}
+    assert one == {**batched, "xla_cpu_experimental_ynn_fusion_type": ""}
+    x = jnp.arange(36.0).reshape(6, 6)
+    f = jax.jit(lambda a: a @ a.T, compiler_options=one)
+    assert "ynn" not in f.lower(x).compile().as_text()
+    assert jnp.allclose(f(x), x @ x.T)
