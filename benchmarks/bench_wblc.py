@@ -59,7 +59,7 @@ from jaxloco.control.wblc import make_wblc  # noqa: E402
 from jaxloco.dynamics.engine_terms import engine_terms  # noqa: E402
 from jaxloco.dynamics.model import keyframe_qpos, load_valkyrie  # noqa: E402
 from jaxloco.robots import ROBOTS  # noqa: E402
-from jaxloco.runtime import watchdog  # noqa: E402
+from jaxloco.runtime import single_thread_compiler_options, watchdog  # noqa: E402
 
 SWING = ("left_foot_ori", "right_foot_ori", "left_foot_pos", "right_foot_pos")
 
@@ -143,7 +143,7 @@ TORQUE_ROWS_TARGET = "torque rows in the force QP, batch 64, over the plain tick
 
 def engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats, batch=64):
     """The tick on MuJoCo C's own terms of the state (``EngineTerms`` after ``mj_step1``),
-    as the C loops and the sweeps' C backend call it: one call and a batch."""
+    as the C loops and the sweeps' C backend call and compile it: one call and a batch."""
     d = mujoco.MjData(model)
     d.qpos[:], d.qvel[:] = data.qpos, np.asarray(v)
     mujoco.mj_step1(model, d)
@@ -153,12 +153,14 @@ def engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats, batch=
         snap = ctrl.snapshot(None, None, e)
         return ctrl(e.qpos, e.qvel, refs, contact, previous=p, snap=snap)
 
-    one = jax.jit(tick)
+    # Compiled as the closed loops compile it (one robot: single-threaded, XLA's own
+    # matrix products; batched: single-threaded, as the sweeps' workers).
+    one = jax.jit(tick, compiler_options=single_thread_compiler_options(batch=1))
     comp, _ = compile_seconds(one, engine, prev)
     t1 = time_calls(one, engine, prev, repeats=repeats, inner=20)
     rows.append(
         dict(
-            case="WBLC tick, single jitted call, MuJoCo C's terms",
+            case="WBLC tick, single jitted call, MuJoCo C's terms, as the C loops compile it",
             per_tick_us=t1["median_s"] * 1e6,
             ticks_per_s=1 / t1["median_s"],
             compile_s=comp,
@@ -166,12 +168,12 @@ def engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats, batch=
     )
     eb = jax.tree.map(lambda x: np.broadcast_to(x, (batch, *x.shape)).copy(), engine)
     pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
-    batched = jax.jit(jax.vmap(tick))
+    batched = jax.jit(jax.vmap(tick), compiler_options=single_thread_compiler_options(batch))
     comp_b, _ = compile_seconds(batched, eb, pb)
     tb = time_calls(batched, eb, pb, repeats=3 * repeats)
     rows.append(
         dict(
-            case=f"WBLC tick, vmap batch {batch}, MuJoCo C's terms",
+            case=f"WBLC tick, vmap batch {batch}, MuJoCo C's terms, as the C sweeps compile it",
             per_tick_us=tb["median_s"] / batch * 1e6,
             ticks_per_s=batch / tb["median_s"],
             compile_s=comp_b,
