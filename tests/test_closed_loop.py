@@ -94,6 +94,10 @@ def test_a_packed_controller_traces_once_across_runs_and_done_reads_its_log(mode
     assert len(traces) == traced
     assert seen == list(range(10)) and len(second.time) == 10 and int(carry[0]) == 10
     np.testing.assert_array_equal(second.qpos[:5], first.qpos)
+    # No tick: no log, and the carry comes back as given.
+    none, carry = run_closed_loop(model, start(model), controller, carry0(), 0, engine=True)
+    assert none.outputs is None and len(none.time) == 0
+    assert isinstance(carry[1], jax.Array) and int(carry[0]) == 0
 
 
 def test_an_impure_controller_or_a_changing_carry_is_refused_clearly(model):

@@ -229,5 +229,5 @@ class _BoundTick:
         )
 
     def carry(self):
-        """The carry after the last tick (JAX arrays)."""
-        return self.carry_layout.unpack(self.packed)
+        """The carry after the last tick (JAX arrays; the initial carry if none ran)."""
+        return self.carry_layout.unpack({k: jnp.asarray(v) for k, v in self.packed.items()})
