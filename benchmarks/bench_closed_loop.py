@@ -14,7 +14,8 @@ the sweeps use, each against physics alone in the same run:
   :class:`~jaxloco.sim.mujoco_c.PackedController` (the path of ``simulate_walk``, the
   viewer and the experiments).
 
-Both at the sweep's physics settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`). Runs
+Each timed run is repeated 3 times (the median is reported). Both at the sweep's physics
+settings (:class:`~jaxloco.sim.mjx_loop.PhysicsParams`). Runs
 start mid-walk (a snapshot of the undisturbed walk during single support), so the gait,
 planner and swing are live. Compile time is reported apart (AOT ``lower().compile()`` for
 MJX; the first tick for C), split into JAX's tracing, lowering and XLA compile seconds, with
@@ -70,6 +71,18 @@ from jaxloco.sweep.outcome import init_outcome  # noqa: E402
 from jaxloco.sweep.starts import snapshot_walk  # noqa: E402
 
 SECOND_PROCESS = "--second-process"
+REPEATS = 3
+"""Each timed run is repeated this many times; the tables give the median."""
+
+
+def median_wall(fn):
+    """Median seconds of :data:`REPEATS` calls of ``fn()``, and the last call's result."""
+    walls = []
+    for _ in range(REPEATS):
+        t0 = time.perf_counter()
+        out = fn()
+        walls.append(time.perf_counter() - t0)
+    return float(np.median(walls)), out
 
 
 def starts_for(snap, n):
@@ -89,9 +102,7 @@ def bench_mjx(sim_model, ctrl, body, starts, steps):
     pushes = PushArrays(*starts.pushes).astype(state.data.qpos.dtype)
     with compile_split() as split:
         compile_s, compiled = compile_seconds(backend._run, state, outcome, pushes)
-    t0 = time.perf_counter()
-    out = jax.block_until_ready(compiled(state, outcome, pushes))
-    wall = time.perf_counter() - t0
+    wall, out = median_wall(lambda: jax.block_until_ready(compiled(state, outcome, pushes)))
     return compile_s, split, wall, int(np.asarray(out.fell).sum())
 
 
@@ -101,9 +112,7 @@ def bench_mjx_physics(mx, data, steps):
 
     fn = jax.jit(jax.vmap(roll))
     compile_s, compiled = compile_seconds(fn, data)
-    t0 = time.perf_counter()
-    jax.block_until_ready(compiled(data))
-    return compile_s, time.perf_counter() - t0
+    return compile_s, median_wall(lambda: jax.block_until_ready(compiled(data)))[0]
 
 
 def bench_c(sim_model, ctrl, body, starts, steps):
@@ -112,9 +121,8 @@ def bench_c(sim_model, ctrl, body, starts, steps):
     with compile_split() as split:
         backend.run(starts, 1)  # compiles the vmapped controller tick
     compile_s = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    out = backend.run(starts, steps)
-    return compile_s, split, time.perf_counter() - t0, int(np.asarray(out.fell).sum())
+    wall, out = median_wall(lambda: backend.run(starts, steps))
+    return compile_s, split, wall, int(np.asarray(out.fell).sum())
 
 
 def bench_c_loop(sim_model, ctrl, starts, steps):
@@ -134,25 +142,34 @@ def bench_c_loop(sim_model, ctrl, starts, steps):
 
     with compile_split() as split:
         compile_s, _ = run(1)
-    wall, log = run(steps)
-    return compile_s, split, wall, int(log.fell)
+    runs = [run(steps) for _ in range(REPEATS)]
+    wall = float(np.median([w for w, _ in runs]))
+    return compile_s, split, wall, int(runs[-1][1].fell)
 
 
 def bench_c_physics(sim_model, starts, steps):
     n = len(starts.times)
     if n == 1:
-        d = mujoco.MjData(sim_model)
-        mujoco.mj_setState(sim_model, d, starts.physics[0], mujoco.mjtState.mjSTATE_INTEGRATION)
-        t0 = time.perf_counter()
-        for _ in range(steps):
-            mujoco.mj_step(sim_model, d)
-        return time.perf_counter() - t0
-    batch = mj_batch.Batch(sim_model, n)
-    batch.state[:] = starts.physics
-    t0 = time.perf_counter()
-    for _ in range(steps):
-        batch.step()
-    return time.perf_counter() - t0
+
+        def run():
+            d = mujoco.MjData(sim_model)
+            mujoco.mj_setState(sim_model, d, starts.physics[0], mujoco.mjtState.mjSTATE_INTEGRATION)
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                mujoco.mj_step(sim_model, d)
+            return time.perf_counter() - t0
+
+    else:
+
+        def run():
+            batch = mj_batch.Batch(sim_model, n)
+            batch.state[:] = starts.physics
+            t0 = time.perf_counter()
+            for _ in range(steps):
+                batch.step()
+            return time.perf_counter() - t0
+
+    return float(np.median([run() for _ in range(REPEATS)]))
 
 
 def first_tick_in_a_new_process(starts) -> dict:
