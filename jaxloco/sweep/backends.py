@@ -6,7 +6,8 @@
   accelerators and to gradients.
 - :class:`CBatchBackend`: MuJoCo's C engine for the chunk (``mujoco.batch.Batch``, a
   thread pool over the simulations), with the same walking controller jitted and vmapped
-  over the chunk, called once per tick from Python. Compiles only the controller.
+  over the chunk (not vmapped for a chunk of one robot), called once per tick from
+  Python. Compiles only the controller.
 
 Both take start states from :mod:`.starts` and return one :class:`~.outcome.Outcome` per
 run; a fallen robot is frozen from its fall on (MJX: its state stops changing; C: it is no
