@@ -99,6 +99,21 @@ def test_unlimited_actuators_and_no_held_rows():
     sol = solve(mass, selection, limits, torques, np.zeros((0, NV)))
     np.testing.assert_allclose(sol.torques, np.clip(torques, -limits, limits), atol=1e-9)
     assert float(sol.torques[0]) == 1e4
+    # Both feet out of contact: their rows are zero, and hold nothing.
+    airborne = solve(mass, selection, limits, torques, np.zeros((HELD, NV)))
+    np.testing.assert_allclose(airborne.torques, sol.torques, atol=1e-9)
+    assert float(airborne.held_residual) == 0.0
+
+
+def test_held_rows_that_cannot_be_factored_hold_nothing_instead_of_nan():
+    """Rows the Cholesky factorisation cannot take (here non-finite) leave the torques
+    finite and within their limits."""
+    rng = np.random.default_rng(3)
+    mass, selection, limits, torques, held = random_problem(rng)
+    held[0, 0] = np.inf
+    sol = solve(mass, selection, limits, torques, held)
+    assert np.all(np.isfinite(np.asarray(sol.torques)))
+    assert np.all(np.abs(np.asarray(sol.torques)) <= limits * (1 + 1e-12))
 
 
 def test_limit_stage_settings_are_checked_by_name():

@@ -19,12 +19,19 @@ held, so the robot's momentum rate is too). Where no change within the limits ho
 feet, the torques still come back within the limits and ``held_residual`` says by how
 much the held feet's acceleration is missed.
 
-**Solver.** ADMM on ``x = z`` (Boyd et al., 2011), ``x`` in the null space of the held
-rows and ``z`` in the box: the ``x``-step is the projection of ``rho / (1 + rho) (z - u)``
-onto that null space (one ``nu x nu`` product, the projector formed once per call), the
-``z``-step a clip. When the torques are already within their limits ``x = z = u = 0`` is
-the fixed point and the stage changes nothing. The returned torques are ``tau + limit z``:
-within the limits exactly; the held rows are met to ``held_residual``.
+**Solver.** ADMM on ``x = z`` (Boyd et al., 2011), ``z`` in the box. The held rows
+``B = J_c A^-1 U' diag(limit)`` enter the ``x``-step as a stiff penalty ``|B x|^2 /
+delta`` (``delta``: ``held_rtol`` times the largest diagonal entry of ``B B'``), so the
+``x``-step is ``(I - B' (B B' + delta' I)^-1 B) rho / (1 + rho) (z - u)`` by Woodbury's
+identity, with ``delta' = (1 + rho) delta``: one Cholesky factorisation of the (m x m)
+``B B' + delta' I`` per call, then one ``nu x nu`` product an iteration; the ``z``-step is a
+clip. A held direction along which ``B B'`` has eigenvalue ``s`` keeps the fraction
+``delta' / (s + delta')`` of the motion it would have free: the directions torques reach
+well are held to round-off, the rows of a foot out of contact (zero) are free, and those
+torques can hardly reach (``s`` near ``delta'``) are held in part, which
+``held_residual`` reports. When the torques are
+already within their limits ``x = z = u = 0`` is the fixed point and the stage changes
+nothing. The returned torques are ``tau + limit z``: within the limits exactly.
 """
 
 from __future__ import annotations
@@ -36,7 +43,6 @@ import jax.numpy as jnp
 from flax import struct
 
 from jaxloco import validation as v
-from jaxloco.control.pinv import pinv_psd
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,12 +52,14 @@ class TorqueLimitParams:
     iterations: int = 60
     """ADMM iterations (a ``fori_loop``). Against quadprog on 100 random problems with
     a third of the torques over their limits (nv 35, nu 29, 12 held rows): median relative
-    objective error 6e-7, 90th percentile 4e-5 (``tests/test_torque_limits.py``)."""
+    objective error 5e-7, 90th percentile 5e-5 in float64 (``tests/test_torque_limits.py``)."""
     rho: float = 3.0
     """ADMM penalty, in units of the objective's (unit) Hessian: 3 met quadprog best of
     0.3, 1, 3 and 10 at 60 iterations."""
-    held_rtol: float = 1e-6
-    """Rank threshold of the held rows' ``B B'`` relative to its largest eigenvalue."""
+    held_rtol: float = 1e-8
+    """The held rows' penalty ``delta`` relative to the largest diagonal entry of ``B B'``
+    (see the module doc); never below 10 machine epsilons of the dtype (1.2e-6 in
+    float32), which keeps ``B B' + delta' I`` positive definite under round-off."""
 
     def __post_init__(self):
         v.check_fields(
@@ -105,14 +113,25 @@ def limit_torques(
     whitened = mass_cholesky_inverse @ (selection.T * scale[None, :])  # (nv, nu)
     response = mass_cholesky_inverse.T @ whitened  # (nv, nu)
     held = held_jacobian @ response  # (m, nu)
-    projector = jnp.eye(held.shape[1], dtype=dtype)
-    if held.shape[0]:
-        projector = projector - held.T @ (pinv_psd(held @ held.T, params.held_rtol) @ held)
+    x_map = jnp.eye(held.shape[1], dtype=dtype)  # the x-step: (I + B'B / delta')^-1
     shrink = params.rho / (1.0 + params.rho)
+    if held.shape[0]:
+        gram = held @ held.T
+        relative = max(params.held_rtol, 10.0 * float(jnp.finfo(dtype).eps))
+        size = jnp.maximum(jnp.max(jnp.diagonal(gram)), jnp.finfo(dtype).tiny)
+        damping = (1.0 + params.rho) * relative * size
+        # A Cholesky factor, not an eigendecomposition: batched, LAPACK's eigh of the
+        # 12 x 12 block cost as much as the 60 iterations (docs/control.md).
+        factor = jax.scipy.linalg.cho_factor(
+            gram + damping * jnp.eye(gram.shape[0], dtype=dtype), lower=True
+        )
+        held_map = x_map - held.T @ jax.scipy.linalg.cho_solve(factor, held)
+        # Never NaN: a factorisation that failed holds nothing (``held_residual`` says so).
+        x_map = jnp.where(jnp.all(jnp.isfinite(held_map)), held_map, x_map)
 
     def iteration(_, zu):
         z, u = zu
-        x = projector @ (shrink * (z - u))
+        x = x_map @ (shrink * (z - u))
         z_new = jnp.clip(x + u, lower, upper)
         return z_new, u + x - z_new
 
