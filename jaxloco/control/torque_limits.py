@@ -120,8 +120,8 @@ def limit_torques(
         relative = max(params.held_rtol, 10.0 * float(jnp.finfo(dtype).eps))
         size = jnp.maximum(jnp.max(jnp.diagonal(gram)), jnp.finfo(dtype).tiny)
         damping = (1.0 + params.rho) * relative * size
-        # A Cholesky factor, not an eigendecomposition: batched, LAPACK's eigh of the
-        # 12 x 12 block cost as much as the 60 iterations (docs/control.md).
+        # A Cholesky factor, not an eigendecomposition: batched, LAPACK's eigh runs one
+        # call per robot, and took about half of the stage's time (docs/control.md).
         factor = jax.scipy.linalg.cho_factor(
             gram + damping * jnp.eye(gram.shape[0], dtype=dtype), lower=True
         )
