@@ -29,9 +29,9 @@ clip. A held direction along which ``B B'`` has eigenvalue ``s`` keeps the fract
 ``delta' / (s + delta')`` of the motion it would have free: the directions torques reach
 well are held to round-off, the rows of a foot out of contact (zero) are free, and those
 torques can hardly reach (``s`` near ``delta'``) are held in part, which
-``held_residual`` reports. When the torques are
-already within their limits ``x = z = u = 0`` is the fixed point and the stage changes
-nothing. The returned torques are ``tau + limit z``: within the limits exactly.
+``held_residual`` reports. When the torques are already within their limits
+``x = z = u = 0`` is the fixed point and the stage changes nothing. The returned torques
+are ``tau + limit z``: within the limits exactly.
 """
 
 from __future__ import annotations
