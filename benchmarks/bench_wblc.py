@@ -155,7 +155,7 @@ def engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats, batch=
 
     # Compiled as the closed loops compile it (one robot: single-threaded, XLA's own
     # matrix products; batched: single-threaded, as the sweeps' workers).
-    one = jax.jit(tick, compiler_options=single_thread_compiler_options(batch=1))
+    one = jax.jit(tick, compiler_options=single_thread_compiler_options())
     comp, _ = compile_seconds(one, engine, prev)
     t1 = time_calls(one, engine, prev, repeats=repeats, inner=20)
     rows.append(
@@ -168,7 +168,7 @@ def engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats, batch=
     )
     eb = jax.tree.map(lambda x: np.broadcast_to(x, (batch, *x.shape)).copy(), engine)
     pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
-    batched = jax.jit(jax.vmap(tick), compiler_options=single_thread_compiler_options(batch))
+    batched = jax.jit(jax.vmap(tick), compiler_options=single_thread_compiler_options())
     comp_b, _ = compile_seconds(batched, eb, pb)
     tb = time_calls(batched, eb, pb, repeats=3 * repeats)
     rows.append(
@@ -217,7 +217,9 @@ def torque_limits_cost(model, refs, q, batch: int, rounds: int) -> dict:
 def robot_rows(peer, batch: int, repeats: int, rounds: int) -> list[dict]:
     """Per shipped robot: the walking WBLC as its walking controller builds it (the G1's
     and Apollo's with torque rows in the force QP), standing in its keyframe: one jitted
-    call, and the batch-``batch`` tick interleaved with PlaCo's tick when installed."""
+    call, and the batch-``batch`` tick interleaved with PlaCo's tick when installed, both
+    compiled as the closed loops and the sweeps compile the controller for one core
+    (``single_thread_compiler_options``)."""
     rows = []
     contact = jnp.ones(2, jnp.float32)
     for robot in ROBOTS.values():
@@ -229,14 +231,18 @@ def robot_rows(peer, batch: int, repeats: int, rounds: int) -> list[dict]:
             refs[name] = refs[name].replace(weight=jnp.zeros((), jnp.float32))
         prev = c.initial_qp_state(jnp.float32)
         v = jnp.asarray(np.random.default_rng(0).normal(0, 0.1, model.nv), jnp.float32)
-        one = jax.jit(lambda q, v, p, c=c, refs=refs: c(q, v, refs, contact, previous=p))
+        one = jax.jit(
+            lambda q, v, p, c=c, refs=refs: c(q, v, refs, contact, previous=p),
+            compiler_options=single_thread_compiler_options(),
+        )
         comp1, _ = compile_seconds(one, q, v, prev)
         t1 = time_calls(one, q, v, prev, repeats=repeats, inner=20)
         qb = jnp.broadcast_to(q, (batch, model.nq))
         vb = jnp.asarray(np.random.default_rng(1).normal(0, 0.1, (batch, model.nv)), jnp.float32)
         pb = jax.tree.map(lambda x: jnp.broadcast_to(x, (batch, *x.shape)), prev)
         batched = jax.jit(
-            jax.vmap(lambda q, v, p, c=c, refs=refs: c(q, v, refs, contact, previous=p))
+            jax.vmap(lambda q, v, p, c=c, refs=refs: c(q, v, refs, contact, previous=p)),
+            compiler_options=single_thread_compiler_options(),
         )
         comp_b, compiled = compile_seconds(batched, qb, vb, pb)
         row = dict(

@@ -130,26 +130,21 @@ def cpu_compiler_options() -> dict | None:
     return {"xla_backend_optimization_level": 1} if jax.default_backend() == "cpu" else None
 
 
-def single_thread_compiler_options(batch: int | None = None) -> dict | None:
-    """``jax.jit(..., compiler_options=...)`` for the sweep's batched controller tick, which
-    sweep workers run on one core each: XLA:CPU calls Eigen's single-threaded kernels
-    instead of handing matrix products to its intra-op thread pool (``docs/sweep.md``).
-    ``None`` (XLA's defaults) on other backends. A compile option rather than an
-    ``XLA_FLAGS`` setting: the driver that compiles the program into the persistent cache
-    and the workers that load it must agree on its cache key, and every process must run
-    the same program for outcomes to be bit-identical wherever a chunk runs.
-
-    ``batch == 1`` (a program for one robot) also leaves matrix products to XLA's own
+def single_thread_compiler_options() -> dict | None:
+    """``jax.jit(..., compiler_options=...)`` for the controller's programs that run on one
+    core: the closed loops' tick for one robot and the sweeps' batched tick (one worker per
+    core). XLA:CPU calls Eigen's single-threaded kernels instead of handing matrix products
+    to its intra-op thread pool (``docs/sweep.md``), and leaves matrix products to its own
     kernels instead of fusing them into YNNPACK calls: the controller's products are a few
-    dozen rows each, and for one robot a library call per product costs more than it
-    saves (a tick about 5% faster); batched, YNNPACK's kernels are the faster ones
-    (docs/architecture.md, measured choices)."""
+    dozen rows each, and a library call per product (per robot of a batch) costs more than
+    it saves, at one robot and at batches of 16 to 256 alike (docs/architecture.md,
+    measured choices). ``None`` (XLA's defaults) on other backends. A compile option rather
+    than an ``XLA_FLAGS`` setting: the driver that compiles the program into the persistent
+    cache and the workers that load it must agree on its cache key, and every process must
+    run the same program for outcomes to be bit-identical wherever a chunk runs."""
     if jax.default_backend() != "cpu":
         return None
-    options = {"xla_cpu_multi_thread_eigen": False}
-    if batch == 1:
-        options["xla_cpu_experimental_ynn_fusion_type"] = ""
-    return options
+    return {"xla_cpu_multi_thread_eigen": False, "xla_cpu_experimental_ynn_fusion_type": ""}
 
 
 @contextlib.contextmanager

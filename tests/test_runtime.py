@@ -107,19 +107,23 @@ def test_the_library_imports_mjx_without_the_warp_line(code):
     assert out.stdout.strip() == "ok"
 
 
-def test_one_robot_programs_leave_matrix_products_to_xla():
-    """Batched programs keep YNNPACK's fused products; a program for one robot compiles
-    them as XLA's own kernels, and the option is one XLA accepts (the program runs)."""
+def test_single_threaded_programs_leave_matrix_products_to_xla():
+    """The controller's one-core programs (one robot or a batch) run Eigen's single-threaded
+    kernels and compile matrix products as XLA's own kernels, not YNNPACK fusions, and the
+    options are ones XLA accepts (the program runs)."""
     import jax
     import jax.numpy as jnp
 
     from jaxloco.runtime import single_thread_compiler_options
 
-    batched = single_thread_compiler_options(batch=64)
-    one = single_thread_compiler_options(batch=1)
-    assert batched == {"xla_cpu_multi_thread_eigen": False}
-    assert one == {**batched, "xla_cpu_experimental_ynn_fusion_type": ""}
-    x = jnp.arange(36.0).reshape(6, 6)
-    f = jax.jit(lambda a: a @ a.T, compiler_options=one)
+    options = single_thread_compiler_options()
+    assert options == {
+        "xla_cpu_multi_thread_eigen": False,
+        "xla_cpu_experimental_ynn_fusion_type": "",
+    }
+    # A batch of the controller's sizes and dtype, which XLA's defaults hand to YNNPACK.
+    x = jnp.linspace(0.0, 1.0, 8 * 35 * 35, dtype=jnp.float32).reshape(8, 35, 35)
+    f = jax.jit(jax.vmap(lambda a: a @ a.T), compiler_options=options)
     assert "ynn" not in f.lower(x).compile().as_text()
-    assert jnp.allclose(f(x), x @ x.T)
+    assert "ynn" in jax.jit(jax.vmap(lambda a: a @ a.T)).lower(x).compile().as_text()
+    assert jnp.allclose(f(x), x @ jnp.swapaxes(x, 1, 2), rtol=1e-5)

@@ -637,10 +637,6 @@ def torque_rows(
     chosen after the forces, and the walking hierarchy leaves it almost no room)."""
     d = snap.data
     moment = force_qp.moment_map(points, in_contact, snap.com)  # (3, 3n)
-    q_cam = hier.qdd[:, 1:4]
-    offset = snap.mass_matrix @ (hier.qdd[:, 0] - q_cam @ cam_rate) + snap.coriolis + snap.gravity
-    jac_t = contact_jacobian(ctrl, d, points).T  # (nv, 3n)
-    matrix = jac_t - snap.mass_matrix @ (q_cam @ moment)
     rows = np.asarray(ctrl.foot_actuators)
     dofs = np.asarray(ctrl.actuated_dofs)[rows]
     # The floating base's rotational rows are equalities (limit 0): forces whose moment
@@ -648,9 +644,16 @@ def torque_rows(
     # rows are the net force, already the QP's hard equality (with the CoM task's command:
     # written twice, the two differ by what the hierarchy leaves of that command).
     base = np.asarray(ctrl.base_rotation_dofs, int)
-    every = jnp.asarray(np.concatenate([dofs, base]))
+    every = np.concatenate([dofs, base])
+    # Only these rows of A are needed: selected before the products, not after.
+    mass = snap.mass_matrix[every]
+    q_cam = hier.qdd[:, 1:4]
+    bias = (snap.coriolis + snap.gravity)[every]
+    offset = mass @ (hier.qdd[:, 0] - q_cam @ cam_rate) + bias
+    jac_t = contact_jacobian(ctrl, d, points).T[every]  # (rows, 3n)
+    matrix = jac_t - (mass @ q_cam) @ moment
     limits = jnp.concatenate([ctrl.torque_limits[rows], jnp.zeros(len(base), offset.dtype)])
-    return force_qp.TorqueRows(matrix[every], offset[every], limits)
+    return force_qp.TorqueRows(matrix, offset, limits)
 
 
 def contact_jacobian(ctrl: WBLC, d, points):

@@ -189,7 +189,7 @@ class PackedController:
             return torques, carry_layout.pack(state), logs["layout"].pack(log)
 
         # One robot: single-threaded kernels, XLA's own matrix products (runtime's notes).
-        return jax.jit(tick, compiler_options=single_thread_compiler_options(batch=1)), logs
+        return jax.jit(tick, compiler_options=single_thread_compiler_options()), logs
 
 
 class _BoundTick:

@@ -134,7 +134,7 @@ class CBatchBackend:
 
             # Single-threaded kernels: faster on a sweep worker's one core. The same program
             # in every process, so outcomes do not depend on where a chunk runs.
-            options = single_thread_compiler_options(batch=n)
+            options = single_thread_compiler_options()
             fn = one_robot if n == 1 else jax.vmap(tick)
             self._ticks[key] = jax.jit(fn, compiler_options=options)
         return self._ticks[key]
