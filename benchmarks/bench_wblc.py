@@ -2,7 +2,8 @@
 force QP's accuracy against quadprog by iteration count, what keeping the legs within
 their effort limits in the force QP costs (``torque_limits_in_qp``, interleaved with the
 paper's WBLC), a row per shipped robot (Valkyrie, Unitree G1, Apptronik Apollo: one call and
-batch 64, each side by side with PlaCo), and PlaCo's C++ whole-body QP.
+batch 64, compiled for one core as the closed loops and sweeps compile them, each side by
+side with PlaCo), and PlaCo's C++ whole-body QP.
 
     python benchmarks/bench_wblc.py [--json PATH] [--quick]
 
