@@ -154,8 +154,8 @@ def engine_rows(model, data, ctrl, refs, v, contact, prev, rows, repeats, batch=
         snap = ctrl.snapshot(None, None, e)
         return ctrl(e.qpos, e.qvel, refs, contact, previous=p, snap=snap)
 
-    # Compiled as the closed loops compile it (one robot: single-threaded, XLA's own
-    # matrix products; batched: single-threaded, as the sweeps' workers).
+    # Compiled as the closed loops (one robot) and the sweeps' workers (a batch) compile
+    # it: single-threaded, XLA's own matrix products.
     one = jax.jit(tick, compiler_options=single_thread_compiler_options())
     comp, _ = compile_seconds(one, engine, prev)
     t1 = time_calls(one, engine, prev, repeats=repeats, inner=20)
