@@ -75,7 +75,7 @@ FORCE_QP_DEFAULTS = {
 """The walking force QP's fields that default to the robot's (the force QP node's field:
 its :data:`ROBOT_DEFAULTS` name)."""
 
-REFERENCE_IMPULSE_HIGH = 128.0
+REFERENCE_IMPULSE_HIGH = 256.0
 """The limit search's default top impulse (N s), chosen for Valkyrie (``PAPER_MASS``)."""
 
 
@@ -83,7 +83,7 @@ def robot_default(field: str) -> str:
     """A config value: the config's ``robot``'s default for ``field``, resolved when the
     config is read: the simulation's ``torque_limit``, solver ``iterations`` and
     ``ls_iterations`` (:class:`~jaxloco.robots.RobotDescription`), the ``fall_height`` of its
-    base, ``impulse_high``, the limit search's top impulse (N s): 128 N s for Valkyrie,
+    base, ``impulse_high``, the limit search's top impulse (N s): 256 N s for Valkyrie,
     the same velocity change (impulse / mass) for another robot, rounded up to 16 N s, and
     the walking force QP's friction pyramids ``mu``, ``mu_relaxed`` and its solver's
     ``qp_iterations``, ``qp_rho``, ``qp_torque_rho``

@@ -112,6 +112,16 @@ def test_bisection_brackets_every_cells_limit_at_the_final_resolution(tmp_path):
     assert set(s["variants"]) == {"replan, 0.1 s", "replan, 0.2 s", "no_replan, 0.1 s",
                                   "no_replan, 0.2 s"}  # fmt: skip
     json.dumps(s)  # every number JSON-ready
+    # Both references counted per variant, and the cells whose limit may lie past the range.
+    assert s["paper_impulse_Ns"] == 52.0 and s["learned_impulse_Ns"] == 108.0
+    variants = s["variants"].values()
+    assert sum(v["cells_at_least_learned"] for v in variants) == int(np.sum(res.limit >= 108.0))
+    assert sum(v["cells_at_least_paper"] for v in variants) == int(np.sum(res.limit >= 52.0))
+    assert sum(v["cells_censored_above"] for v in variants) == int(res.censored_above.sum()) == 1
+    # On a lighter robot both references are the same velocity changes as on the paper's.
+    light = res.summary(mass=35.0)
+    assert light["paper_impulse_Ns"] == round(52.0 * 35.0 / 135.9, 2)
+    assert light["learned_impulse_Ns"] == round(108.0 * 35.0 / 135.9, 2)
 
 
 def test_a_run_directory_holds_one_search(tmp_path):
@@ -151,6 +161,10 @@ def test_the_main_job_finds_a_limit_on_mujoco_c_and_resumes(tmp_path, installed_
     assert cell["limit_Ns"] in (20.0, 30.0) and cell["bracket_Ns"][1] - cell["bracket_Ns"][0] == 10
     for name in ("limits_polar.png", "limits_heatmap.png", "summary.md"):
         assert (run / name).stat().st_size > 0
+    assert (
+        "| cells >= 52 N s | cells >= 108 N s | cells past the range |"
+        in (run / "summary.md").read_text()
+    )
     manifest = json.loads((run / "round_00" / "manifest.json").read_text())
     assert len(manifest["runs"]) == 1 and manifest["limit_search"]["rounds"] == 2
     assert sorted(p.name for p in (run / "walks").iterdir()) == ["1.0_0.0_1.npz"]
@@ -168,7 +182,7 @@ def test_limit_searches_compare_per_direction(tmp_path):
 
     search = LimitSearch(**SMALL)
     n = len(search.cells())
-    strong = np.full(n, 100.0)
+    strong = np.full(n, 120.0)
     weak = np.linspace(10.0, 90.0, n)
     summaries = {}
     for label, true in (("bound", strong), ("model", weak)):
@@ -183,6 +197,15 @@ def test_limit_searches_compare_per_direction(tmp_path):
     assert row["model"]["worst_phase_Ns"] == min(model_limits)
     assert row["model"]["median_Ns"] == float(np.median(model_limits))
     assert row["bound"]["worst_phase_Ns"] > row["model"]["worst_phase_Ns"]
+    # The learned policy's 108 N s: every cell of the strong search reaches it, no other.
+    variant = cmp["variants"]["replan, 0.1 s"]
+    assert variant["cells_at_least_learned"] == {"bound": variant["cells"], "model": 0}
+    assert cmp["learned_impulse_Ns"] == 108.0
+    older = json.loads(json.dumps(summaries["model"]))  # written before the count existed
+    for v in older["variants"].values():
+        del v["cells_at_least_learned"]
+    mixed = compare_limit_summaries({"bound": summaries["bound"], "older": older})
+    assert mixed["variants"]["replan, 0.1 s"]["cells_at_least_learned"]["older"] is None
     other = json.loads(json.dumps(summaries["model"]))
     other["search"]["phases"] = [0.5]
     with pytest.raises(ValueError, match="search.phases"):
@@ -197,6 +220,7 @@ def test_limit_searches_compare_per_direction(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     table = (tmp_path / "cmp" / "comparison.md").read_text()
     assert "| direction | 500 N m | model |" in table and "| 90 deg |" in table
+    assert "| cells >= 108 N s (learned policy) | 6/6 | 0/6 |" in table
     assert (tmp_path / "cmp" / "comparison_polar.png").stat().st_size > 0
     bad = compare_cli(f"runs=[{tmp_path / 'bound'}]", f"hydra.run.dir={tmp_path / 'x'}")
     assert bad.returncode != 0 and "runs: needs at least two" in bad.stderr, bad.stderr[-2000:]

@@ -324,7 +324,7 @@ def test_g1_walks_three_steps_pushed_with_the_whole_body_within_its_limits(model
 def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
     """`jaxloco push-sweep robot=g1`: one cell, one round, one replica, a short horizon. The
     G1's defaults follow the robot (its effort limits, MuJoCo's solver, its fall height, a
-    bracket of the same velocity change as Valkyrie's 0-128 N s) and the report gives the
+    bracket of the same velocity change as Valkyrie's 0-256 N s) and the report gives the
     limit in m/s against the paper's push at the G1's mass."""
     args = [
         "push-sweep",
@@ -348,10 +348,10 @@ def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
     mass = summary["robot_mass_kg"]
     assert mass == pytest.approx(33.34, abs=0.01)
     assert summary["paper_impulse_Ns"] == pytest.approx(52.0 * mass / 135.9, abs=0.01)
-    assert summary["search"]["impulse_range"] == [0.0, 32.0]
+    assert summary["search"]["impulse_range"] == [0.0, 64.0]
     assert summary["search"]["fall_height"] == G1.fall_height
     (cell,) = summary["cells"]
-    assert cell["tested_Ns"] == [16.0]
+    assert cell["tested_Ns"] == [32.0]
     assert cell["limit_mps"] == pytest.approx(cell["limit_Ns"] / mass)
     manifest = json.loads((run / "round_00" / "manifest.json").read_text())
     assert manifest["settings"]["robot"] == "g1"
@@ -363,18 +363,18 @@ def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
 
 EXPECTED_DEFAULTS = {
     "valkyrie": {"torque_limit": 500.0, "iterations": 2, "ls_iterations": 4,
-                 "fall_height": 0.7, "impulse_range": [0.0, 128.0]},
+                 "fall_height": 0.7, "impulse_range": [0.0, 256.0]},
     "g1": {"torque_limit": "model", "iterations": 100, "ls_iterations": 50,
-           "fall_height": 0.45, "impulse_range": [0.0, 32.0]},
+           "fall_height": 0.45, "impulse_range": [0.0, 64.0]},
     "apollo": {"torque_limit": "model", "iterations": 100, "ls_iterations": 50,
-               "fall_height": 0.6, "impulse_range": [0.0, 80.0]},
+               "fall_height": 0.6, "impulse_range": [0.0, 160.0]},
 }  # fmt: skip
 
 
 def test_robot_defaults_of_the_experiment_configs():
     """The values configs take from their ``robot``: Valkyrie's stay the paper's (what `make
     run` searches with); the others get their own limits, MuJoCo's solver, their fall height
-    and a bracket of the same velocity change as Valkyrie's 0-128 N s."""
+    and a bracket of the same velocity change as Valkyrie's 0-256 N s."""
     from jaxloco.app import _robot_value
 
     for robot, expected in EXPECTED_DEFAULTS.items():

@@ -7,7 +7,12 @@ import dataclasses
 import numpy as np
 
 from jaxloco.runtime import to_jsonable
-from jaxloco.sweep.limit_search import Brackets, LimitSearch, paper_impulse_for
+from jaxloco.sweep.limit_search import (
+    Brackets,
+    LimitSearch,
+    learned_impulse_for,
+    paper_impulse_for,
+)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -48,9 +53,11 @@ class LimitResult:
     def summary(self, mass: float | None = None) -> dict:
         """Every number of the search, JSON-ready. With the robot's ``mass`` (kg) the limits
         are also given as velocity changes (impulse / mass, m/s), and the paper's push is
-        the same velocity change as the paper's 52 N s (:func:`paper_impulse_for`)."""
+        the same velocity change as the paper's 52 N s (:func:`paper_impulse_for`), and so is
+        the learned policy's 108 N s (:func:`learned_impulse_for`)."""
         s = self.search
         paper = paper_impulse_for(mass)
+        learned = learned_impulse_for(mass)
         rows = []
         for k, (d, p, t, r) in enumerate(self.cells):
             rows.append(
@@ -64,6 +71,7 @@ class LimitResult:
                     "censored_above": bool(self.censored_above[k]),
                     "censored_below": bool(self.censored_below[k]),
                     "at_least_paper": bool(self.limit[k] >= paper),
+                    "at_least_learned": bool(self.limit[k] >= learned),
                     "tested_Ns": self.tested[: self.rounds_done, k].tolist(),
                     "recovered_replicas": self.recovered[: self.rounds_done, k].tolist(),
                     "replicas_run": self.runs[: self.rounds_done, k].tolist(),
@@ -86,6 +94,8 @@ class LimitResult:
                     "min_limit_Ns": float(np.min(lim)),
                     "max_limit_Ns": float(np.max(lim)),
                     "cells_at_least_paper": int(np.sum(lim >= paper)),
+                    "cells_at_least_learned": int(np.sum(lim >= learned)),
+                    "cells_censored_above": int(np.sum(self.censored_above[sel])),
                     "cells": len(sel),
                     "worst_phase_limit_per_direction_Ns": per_dir,
                 }
@@ -102,6 +112,7 @@ class LimitResult:
                 "search": dataclasses.asdict(s),
                 **extra,
                 "paper_impulse_Ns": paper,
+                "learned_impulse_Ns": learned,
                 "resolution_Ns": s.resolution(),
                 "rounds_done": self.rounds_done,
                 "pushes_run": int(self.runs[: self.rounds_done].sum()),

@@ -20,17 +20,34 @@ PAPER_MASS = 135.9
 ``PAPER_IMPULSE / PAPER_MASS`` = 0.383 m/s."""
 
 
+LEARNED_IMPULSE = 108.0
+"""The largest push reported recovered on Valkyrie by a learned policy (Yuan et al., 2020;
+N s): the search's second reference, beyond the paper's."""
+
+
 def paper_impulse_for(mass: float | None) -> float:
     """The paper's push for a robot of ``mass`` kg: the same velocity change (N s, to 0.01;
     52 N s for the paper's robot or when ``mass`` is None)."""
-    return PAPER_IMPULSE if mass is None else round(PAPER_IMPULSE * mass / PAPER_MASS, 2)
+    return scaled_impulse(PAPER_IMPULSE, mass)
+
+
+def learned_impulse_for(mass: float | None) -> float:
+    """:data:`LEARNED_IMPULSE` for a robot of ``mass`` kg, as the same velocity change on the
+    paper's 135.9 kg (N s, to 0.01; 108 N s when ``mass`` is None)."""
+    return scaled_impulse(LEARNED_IMPULSE, mass)
+
+
+def scaled_impulse(impulse: float, mass: float | None) -> float:
+    """``impulse`` (N s, on the paper's robot) as the same velocity change on a robot of
+    ``mass`` kg (to 0.01 N s; unchanged when ``mass`` is None)."""
+    return impulse if mass is None else round(impulse * mass / PAPER_MASS, 2)
 
 
 @dataclasses.dataclass(frozen=True)
 class LimitSearch:
     """The cells searched and how (see the module doc). The defaults are ``make run``'s:
-    8 directions x 5 phases x replanning on and off, 4 rounds of up to 5 replicas (at most
-    1,600 pushes; resolution 8 N s)."""
+    8 directions x 5 phases x replanning on and off, 5 rounds of up to 5 replicas over
+    0-256 N s (at most 2,000 pushes; resolution 8 N s)."""
 
     directions_deg: tuple[float, ...] = (0.0, 45.0, 90.0, 135.0, 180.0, 225.0, 270.0, 315.0)
     """Where the force points in the walking frame at the push (0: forward, i.e. a push
@@ -42,9 +59,11 @@ class LimitSearch:
     """Push durations (s); a cell per duration (e.g. ``[0.1, 0.2]``)."""
     replan: tuple[bool, ...] = (True, False)
     """Eq. 33-34 replanning on / off."""
-    impulse_range: tuple[float, float] = (0.0, 128.0)
-    """The bisection's initial bracket (N s), over twice the paper's 52."""
-    rounds: int = 4
+    impulse_range: tuple[float, float] = (0.0, 256.0)
+    """The bisection's initial bracket (N s): beyond twice the learned policy's 108
+    (:data:`LEARNED_IMPULSE`), so that no cell at the paper's 500 N m bound recovers every
+    impulse tried (the largest limit found there: 192 N s)."""
+    rounds: int = 5
     """Bisection rounds: the limit's resolution is the range over ``2**rounds``."""
     replicas: int = 5
     """Runs per tested impulse, each from a new draw of the start-state noise."""

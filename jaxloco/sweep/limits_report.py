@@ -92,6 +92,7 @@ def plot_limits_heatmap(result: LimitResult) -> Figure:
 
 def _markdown(summary: dict) -> str:
     s = summary["search"]
+    paper, learned = summary["paper_impulse_Ns"], summary["learned_impulse_Ns"]
     lines = [
         "# Limit search: the largest recovered impulse",
         "",
@@ -99,25 +100,27 @@ def _markdown(summary: dict) -> str:
         f"(resolution {summary['resolution_Ns']:g} N s), up to {s['replicas']} replicas per "
         f"tested impulse (qvel noise {s['qvel_noise']:g}; the last only where the others "
         f"left the decision open), recovered when >= {s['min_recovered']} recover; "
-        f"{summary['pushes_run']} pushes. The paper's push: {summary['paper_impulse_Ns']:g} N s.",
+        f"{summary['pushes_run']} pushes. The paper's push: {paper:g} N s; the largest "
+        f"recovered by a learned policy on Valkyrie (Yuan et al., 2020): {learned:g} N s.",
         "",
     ]
-    paper = summary["paper_impulse_Ns"]
     mass = summary.get("robot_mass_kg")
     if mass is None:
         lines += [
-            f"| variant | median limit (N s) | min | max | cells >= {paper:g} N s |",
-            "|---|---|---|---|---|",
+            f"| variant | median limit (N s) | min | max | cells >= {paper:g} N s "
+            f"| cells >= {learned:g} N s | cells past the range |",
+            "|---|---|---|---|---|---|---|",
         ]
     else:
         lines[2] += (
             f" On this robot ({mass:.1f} kg) that is the paper's velocity change, "
-            f"{summary['paper_velocity_mps']:.3f} m/s (52 N s on the paper's 135.9 kg robot)."
+            f"{summary['paper_velocity_mps']:.3f} m/s (52 N s on the paper's 135.9 kg robot), "
+            f"and the learned policy's {learned / mass:.3f} m/s (108 N s)."
         )
         lines += [
             f"| variant | median limit (N s) | min | max | median (m/s) | min | max "
-            f"| cells >= {paper:g} N s |",
-            "|---|---|---|---|---|---|---|---|",
+            f"| cells >= {paper:g} N s | cells >= {learned:g} N s | cells past the range |",
+            "|---|---|---|---|---|---|---|---|---|---|",
         ]
     for name, v in summary["variants"].items():
         speeds = (
@@ -128,7 +131,8 @@ def _markdown(summary: dict) -> str:
         )
         lines.append(
             f"| {name} | {v['median_limit_Ns']:g} | {v['min_limit_Ns']:g} | "
-            f"{v['max_limit_Ns']:g} | {speeds}{v['cells_at_least_paper']}/{v['cells']} |"
+            f"{v['max_limit_Ns']:g} | {speeds}{v['cells_at_least_paper']}/{v['cells']} | "
+            f"{v['cells_at_least_learned']}/{v['cells']} | {v['cells_censored_above']} |"
         )
     for name, v in summary["variants"].items():
         lines += ["", f"## {name}: worst phase's limit per direction (N s)", ""]
@@ -209,11 +213,16 @@ def compare_limit_summaries(summaries: dict[str, dict]) -> dict:
             "cells_at_least_paper": {
                 lb: summaries[lb]["variants"][name]["cells_at_least_paper"] for lb in labels
             },
+            # Summaries written before the learned policy's reference have no count: None.
+            "cells_at_least_learned": {
+                lb: summaries[lb]["variants"][name].get("cells_at_least_learned") for lb in labels
+            },
             "cells": v["cells"],
         }
     return {
         "labels": labels,
         "paper_impulse_Ns": first["paper_impulse_Ns"],
+        "learned_impulse_Ns": first.get("learned_impulse_Ns"),
         "resolution_Ns": first["resolution_Ns"],
         "variants": variants,
     }
@@ -239,6 +248,16 @@ def _comparison_markdown(cmp: dict) -> str:
         lines.append("| median cell | " + " | ".join(medians) + " |")
         paper = [f"{v['cells_at_least_paper'][lb]}/{v['cells']}" for lb in labels]
         lines.append("| cells >= paper | " + " | ".join(paper) + " |")
+        learned = v.get("cells_at_least_learned", {})
+        if cmp.get("learned_impulse_Ns") is not None:
+            counts = [
+                "-" if learned.get(lb) is None else f"{learned[lb]}/{v['cells']}" for lb in labels
+            ]
+            lines.append(
+                f"| cells >= {cmp['learned_impulse_Ns']:g} N s (learned policy) | "
+                + " | ".join(counts)
+                + " |"
+            )
     return "\n".join(lines) + "\n"
 
 
