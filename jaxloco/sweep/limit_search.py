@@ -21,8 +21,8 @@ PAPER_MASS = 135.9
 
 
 LEARNED_IMPULSE = 108.0
-"""The largest push reported recovered on Valkyrie by a learned policy (Yuan et al., 2020;
-N s): the search's second reference, beyond the paper's."""
+"""The largest push reported recovered on the paper's robot by a learned policy (Yuan et
+al., 2020; N s): the search's second reference, beyond the paper's."""
 
 
 def paper_impulse_for(mass: float | None) -> float:

@@ -101,7 +101,7 @@ def _markdown(summary: dict) -> str:
         f"tested impulse (qvel noise {s['qvel_noise']:g}; the last only where the others "
         f"left the decision open), recovered when >= {s['min_recovered']} recover; "
         f"{summary['pushes_run']} pushes. The paper's push: {paper:g} N s; the largest "
-        f"recovered by a learned policy on Valkyrie (Yuan et al., 2020): {learned:g} N s.",
+        f"recovered by a learned policy on the paper's robot (Yuan et al., 2020): {learned:g} N s.",
         "",
     ]
     mass = summary.get("robot_mass_kg")
