@@ -84,10 +84,8 @@ def test_shipped_tuned_shaking_gains_load_and_keep_the_damping_ratio():
 
 
 def test_gain_space_tunes_replan_gamma_inside_zero_one():
-    from jaxloco.locomotion.gait_params import GaitParams
-
     base = default_gains(body_shaking_config("H2").tasks)
-    base_gait = {"replan_gamma": GaitParams().replan_gamma}
+    base_gait = {"replan_gamma": 0.5}  # a hand-set blend: its logit is 0
     space = GainSpace(("gait.replan_gamma", "com.kp"), per_row=True)
     p = space.init(base, jnp.float64)
     assert p["gait.replan_gamma"].shape == (1,)  # one number, whatever per_row says

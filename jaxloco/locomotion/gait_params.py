@@ -90,9 +90,10 @@ class GaitParams:
     (``TuneConfig(gradient="smoothed")``)."""
     replan_delay: float = 0.02
     """How long the error must stay above the threshold (s)."""
-    replan_gamma: float = 0.5
+    replan_gamma: float = 0.2
     """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state, in (0, 1).
-    The paper uses 0.8, which under-reacts to a push on this model (docs/locomotion.md).
+    The paper uses 0.8, which under-reacts to a push on this model; 0.2 recovers more than
+    0.5 on the limit search at both torque bounds (docs/locomotion.md).
     Per robot it is data (:class:`GaitOverrides`), so it can be traced and tuned
     by gradient."""
     max_apex_speed: float = 1.0
