@@ -191,7 +191,13 @@ def run(cfg, out_dir: Path):
         if cfg.backend != "c":
             raise ValueError("task=limits runs on the C backend; use backend=c")
         result = run_limit_search(to_params(LimitSearch, cfg.search), out_dir, **common)
-        report = write_limits_report(result, out_dir, dpi=cfg.dpi, mass=_robot_mass(cfg.robot))
+        report = write_limits_report(
+            result,
+            out_dir,
+            dpi=cfg.dpi,
+            mass=_robot_mass(cfg.robot),
+            torque_limit=to_params(PhysicsParams, cfg.physics).torque_limit,
+        )
         return {"task": "limits", "report": report}
     result = run_sweep(
         to_params(SweepSpec, cfg.sweep),

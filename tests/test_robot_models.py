@@ -359,6 +359,8 @@ def test_a_ci_sized_limit_search_on_the_g1(tmp_path):
     assert (physics["iterations"], physics["ls_iterations"]) == (100, 50)
     assert physics["torque_limit"] == "model"
     assert "m/s" in (run / "summary.md").read_text()
+    assert summary["torque_limit"] == "model"
+    assert "each joint's own effort limit" in (run / "summary.md").read_text()
 
 
 EXPECTED_DEFAULTS = {

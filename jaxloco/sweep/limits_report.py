@@ -17,6 +17,7 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxloco.runtime import write_json
+from jaxloco.sim.mjx_loop import MODEL_LIMITS
 from jaxloco.sweep.limit_result import LimitResult
 from jaxloco.sweep.limit_search import paper_impulse_for
 
@@ -122,6 +123,13 @@ def _markdown(summary: dict) -> str:
             f"| cells >= {paper:g} N s | cells >= {learned:g} N s | cells past the range |",
             "|---|---|---|---|---|---|---|---|---|---|",
         ]
+    bound = summary.get("torque_limit")
+    if bound == MODEL_LIMITS:
+        lines[2] += " Actuator torques bounded by each joint's own effort limit (the model's)."
+    elif bound is not None:
+        lines[2] += f" Actuator torques bounded at +-{float(bound):g} N m at every joint" + (
+            " (the paper's authors' setting)." if float(bound) == 500.0 else "."
+        )
     for name, v in summary["variants"].items():
         speeds = (
             ""
@@ -151,13 +159,22 @@ def _markdown(summary: dict) -> str:
 
 
 def write_limits_report(
-    result: LimitResult, out_dir, dpi: int = 120, mass: float | None = None
+    result: LimitResult,
+    out_dir,
+    dpi: int = 120,
+    mass: float | None = None,
+    torque_limit: float | str | None = None,
 ) -> dict:
     """Write the report files (see the module doc) into ``out_dir``; returns the summary.
     ``mass``: the robot's (kg), for the limits as velocity changes and the paper's push
-    at the robot's mass (None: the paper's robot's numbers, 52 N s)."""
+    at the robot's mass (None: the paper's robot's numbers, 52 N s). ``torque_limit``: the
+    simulation's actuator bound the search ran at (``PhysicsParams.torque_limit``: N m at
+    every joint, or ``"model"``, each joint's own effort limit), stated in the report
+    (None: not stated)."""
     out = Path(out_dir)
     summary = result.summary(mass)
+    if torque_limit is not None:
+        summary["torque_limit"] = torque_limit
     write_json(out / "summary.json", summary)
     (out / "summary.md").write_text(_markdown(summary))
     plot_limits_polar(result, summary["paper_impulse_Ns"]).savefig(
