@@ -17,9 +17,14 @@ import numpy as np
 from matplotlib.figure import Figure
 
 from jaxloco.runtime import write_json
-from jaxloco.sim.mjx_loop import MODEL_LIMITS
+from jaxloco.sim.mjx_loop import MODEL_LIMITS, PhysicsParams
 from jaxloco.sweep.limit_result import LimitResult
-from jaxloco.sweep.limit_search import paper_impulse_for
+from jaxloco.sweep.limit_search import (
+    LEARNED_IMPULSE,
+    PAPER_IMPULSE,
+    PAPER_MASS,
+    paper_impulse_for,
+)
 
 
 def _variants(result: LimitResult):
@@ -115,8 +120,9 @@ def _markdown(summary: dict) -> str:
     else:
         lines[2] += (
             f" On this robot ({mass:.1f} kg) that is the paper's velocity change, "
-            f"{summary['paper_velocity_mps']:.3f} m/s (52 N s on the paper's 135.9 kg robot), "
-            f"and the learned policy's {learned / mass:.3f} m/s (108 N s)."
+            f"{summary['paper_velocity_mps']:.3f} m/s ({PAPER_IMPULSE:g} N s on the paper's "
+            f"{PAPER_MASS:g} kg robot), and the learned policy's {learned / mass:.3f} m/s "
+            f"({LEARNED_IMPULSE:g} N s)."
         )
         lines += [
             f"| variant | median limit (N s) | min | max | median (m/s) | min | max "
@@ -128,7 +134,9 @@ def _markdown(summary: dict) -> str:
         lines[2] += " Actuator torques bounded by each joint's own effort limit (the model's)."
     elif bound is not None:
         lines[2] += f" Actuator torques bounded at +-{float(bound):g} N m at every joint" + (
-            " (the paper's authors' setting)." if float(bound) == 500.0 else "."
+            " (the paper's authors' setting)."
+            if float(bound) == PhysicsParams().torque_limit
+            else "."
         )
     for name, v in summary["variants"].items():
         speeds = (
