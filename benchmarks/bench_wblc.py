@@ -613,7 +613,7 @@ def main():
         )
     )
     targets = [
-        target("one jitted call", rows[0]["per_tick_us"], 500.0, "us"),
+        target("one jitted call", rows[0]["per_tick_us"], 150.0, "us"),
         target(TORQUE_ROWS_TARGET, limits_cost["ratio"], 1.3, "x"),
     ]
     if peer is not None:

@@ -118,6 +118,9 @@ class PushSweepConfig(RunConfig):
     the walking preset's (``presets.WALKING_INVERSES``)."""
     torque_pinv_rtol: float = 1e-8
     """The rank threshold of Eq. 19's torque solve (``WBLCConfig.torque_pinv_rtol``)."""
+    com_acc_limit: float = float("inf")
+    """Bound on the norm of the CoM task's horizontal acceleration command, m/s^2
+    (``WBLCConfig.com_acc_limit``; inf: unbounded, the paper's)."""
     torque_limits_in_qp: Optional[bool] = None  # noqa: UP045 (OmegaConf needs typing.Optional)
     """Keep the legs' torques within the model's effort limits in the force QP
     (``WBLCConfig.torque_limits_in_qp``); pair with ``physics.torque_limit=model``. None:
@@ -157,6 +160,7 @@ def controller_settings(cfg) -> dict:
                 pinv_rtol=cfg.pinv_rtol,
                 whiten_tasks=cfg.whiten_tasks,
                 torque_pinv_rtol=cfg.torque_pinv_rtol,
+                com_acc_limit=cfg.com_acc_limit,
                 torque_limits_in_qp=cfg.torque_limits_in_qp,
                 whole_body_limits=cfg.whole_body_limits,
                 force_qp=to_params(ForceQPParams, cfg.force_qp),

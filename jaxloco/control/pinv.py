@@ -51,9 +51,14 @@ def pinv_psd(matrix, rtol: float = 1e-8, scale=None):
     return _pinv_psd(matrix, rtol, scale)
 
 
-JACOBI_SWEEPS = 5
-"""Cyclic Jacobi sweeps for the eigendecomposition of a 3 x 3 block (quadratic convergence:
-float64 round-off is reached in 3 to 4)."""
+def jacobi_sweeps(dtype) -> int:
+    """Cyclic Jacobi sweeps for the eigendecomposition of a 3 x 3 block: the fewest that
+    reach the dtype's round-off (quadratic convergence). Measured on 20,000 PSD matrices of
+    rank 1-3 over four decades, a third of them with two eigenvalues within 1e-8 to 1e-1
+    of each other: the truncated inverse's largest error relative to NumPy's float64
+    ``pinv`` was 1e1 after 2 sweeps and 9.6e-6 after 3, 4 or 5 in float32; 6e-7 after 3
+    and 5e-14 after 4 or 5 in float64. Each sweep is a dozen kernels per level, batched."""
+    return 3 if jnp.finfo(dtype).bits <= 32 else 4
 
 
 def _jacobi_eigh3(matrix):
@@ -85,7 +90,7 @@ def _jacobi_eigh3(matrix):
                 v[k, p], v[k, q] = c * vkp - s * vkq, s * vkp + c * vkq
         return a, v
 
-    a, v = jax.lax.fori_loop(0, JACOBI_SWEEPS, sweep, (a, v))
+    a, v = jax.lax.fori_loop(0, jacobi_sweeps(matrix.dtype), sweep, (a, v))
     w = jnp.stack([a[0, 0], a[1, 1], a[2, 2]])
     vectors = jnp.stack([jnp.stack([v[i, j] for j in range(3)]) for i in range(3)])
     return w, vectors
