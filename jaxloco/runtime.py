@@ -37,12 +37,14 @@ def assets_dir() -> Path:
     return Path(__file__).resolve().parents[1] / "assets"
 
 
-SMALL_LOOP_BYTES = 16_000
+SMALL_LOOP_BYTES = 52_000
 """XLA:CPU compiles a while loop (``lax.scan``, ``fori_loop``) whose one iteration touches
 fewer bytes than this into a single kernel, instead of dispatching each operation of each
-iteration separately (XLA's own default: 1 kB). 16 kB takes in the force QP's ADMM loop of
-one robot, and leaves out the same loop batched, which runs faster dispatched
-(docs/architecture.md, measured choices)."""
+iteration separately (XLA's own default: 1 kB). 52 kB takes in the force QP's ADMM loop of
+one robot and the hierarchy's 3 x 3 Jacobi loops batched 64 (48-52 kB an iteration: about
+40 kernels a sweep, dispatched), and leaves out the ADMM loop batched 16 (the C backend's
+chunks; 52-56 kB an iteration) and 64 (taken in at 64 kB, it ran slower; docs/
+architecture.md, measured choices)."""
 
 
 def configure(small_loop_bytes: int = SMALL_LOOP_BYTES, fusion_emitters: bool = False) -> None:

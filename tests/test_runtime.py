@@ -39,7 +39,7 @@ def test_import_changes_nothing_and_configure_sets_the_flags():
     # flags would be ignored).
     assert seen["imported"] == {"flags": None, "backends": False}
     assert "--xla_cpu_enable_concurrency_optimized_scheduler=false" in seen["after"]
-    assert "xla_cpu_small_while_loop_byte_threshold=16000" in seen["after"]
+    assert "xla_cpu_small_while_loop_byte_threshold=52000" in seen["after"]
     assert "--xla_cpu_use_fusion_emitters=false" in seen["after"]
 
 
