@@ -57,7 +57,8 @@ def jacobi_sweeps(dtype) -> int:
     rank 1-3 over four decades, a third of them with two eigenvalues within 1e-8 to 1e-1
     of each other: the truncated inverse's largest error relative to NumPy's float64
     ``pinv`` was 1e1 after 2 sweeps and 9.6e-6 after 3, 4 or 5 in float32; 6e-7 after 3
-    and 5e-14 after 4 or 5 in float64. Each sweep is a dozen kernels per level, batched."""
+    and 5e-14 after 4 or 5 in float64. A sweep is about 40 kernels a level where XLA
+    dispatches the loop's operations one by one (loops over ``runtime.SMALL_LOOP_BYTES``)."""
     return 3 if jnp.finfo(dtype).bits <= 32 else 4
 
 
