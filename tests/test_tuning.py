@@ -262,6 +262,35 @@ def test_gradient_step_planner_takes_safe_steps_from_the_nominal_and_pushed_stat
     assert psp.p_x_min <= a[0] <= psp.p_x_max and abs(a[1] - psp.xd_apex_nominal) < 0.1
 
 
+def test_a_start_state_tied_to_the_parameters_keeps_values_and_derivatives():
+    """``depend_on`` changes no value and no derivative of a rollout (a chain of carries
+    that reach the parameter one tick after another) and leaves integer leaves alone."""
+    from jaxloco.tuning.rollout import depend_on
+
+    start = {"a": jnp.zeros(2), "b": jnp.ones(2), "n": jnp.asarray(3, jnp.int32)}
+
+    def rollout(p, tie):
+        s0 = depend_on(start, {"gain": p}) if tie else start
+
+        def tick(s, _):
+            return {"a": s["a"] + p, "b": s["b"] * (1.0 + 0.1 * s["a"]), "n": s["n"] + 1}, None
+
+        final, _ = jax.lax.scan(tick, s0, None, length=5)
+        return jnp.sum(final["b"]) + final["n"]
+
+    tied = depend_on(start, {"gain": jnp.asarray(0.3)})
+    assert tied["n"].dtype == jnp.int32 and int(tied["n"]) == 3
+    np.testing.assert_array_equal(tied["b"], start["b"])
+    for p in (0.3, -1.2):
+        plain = jax.jvp(lambda x: rollout(x, False), (jnp.asarray(p),), (jnp.asarray(1.0),))
+        got = jax.jvp(lambda x: rollout(x, True), (jnp.asarray(p),), (jnp.asarray(1.0),))
+        np.testing.assert_allclose(got, plain, rtol=1e-14)
+        assert float(plain[1]) != 0.0
+    np.testing.assert_allclose(
+        jax.grad(lambda x: rollout(x, True))(0.3), jax.grad(lambda x: rollout(x, False))(0.3)
+    )
+
+
 def test_closed_loop_gradients_match_finite_differences_and_tuning_lowers_the_loss():
     """Forward-mode gradients through 60 ticks of WBLC + mjx.step (body shaking, float64,
     every loss term weighted, the feet's slip too) against central differences; then four

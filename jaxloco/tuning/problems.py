@@ -39,7 +39,7 @@ from jaxloco.sim.push import PushArrays, body_index
 from jaxloco.sweep.backends import ChunkStarts, mjx_loop_states
 from jaxloco.sweep.starts import snapshot_walk
 from jaxloco.tuning.gains import GainSpace
-from jaxloco.tuning.rollout import check_differentiable, mean_costs
+from jaxloco.tuning.rollout import check_differentiable, depend_on, mean_costs
 
 
 @dataclasses.dataclass(frozen=True)
@@ -186,6 +186,7 @@ def shaking_loss(
         states = jax.tree.map(
             lambda x: jnp.broadcast_to(_as_float(x, dtype), (n_push * n_freq, *x.shape)), state0
         )
+        states = depend_on(states, gain_params)
         batch = jax.vmap(one)(pairs_push, pairs_freq, states)
         costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), batch)
         loss = (
@@ -397,6 +398,7 @@ def push_loss(
         states = jax.tree.map(
             lambda x: jnp.broadcast_to(x, pushes.magnitude.shape[:1] + x.shape), state0
         )
+        states = depend_on(states, tuned)
         costs = jax.tree.map(lambda v: jnp.mean(v, axis=0), jax.vmap(one)(pushes, states))
         loss = (
             params.risk_weight * costs["at_risk"]
