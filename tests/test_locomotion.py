@@ -341,6 +341,35 @@ def test_a_foot_landing_late_does_not_lift_the_next_steps():
     assert float(com_z) == pytest.approx(psp.h, abs=1e-9)
 
 
+def test_a_touchdown_far_off_the_reference_plans_from_eq34s_blend():
+    """A push that ends as the foot lands: the measured CoM is 8 cm behind its reference
+    and 0.3 m/s slower at the touch-down. With ``replan_at_touchdown`` the new step's plan
+    and CoM reference start from Eq. 34's blend; without it, or with replanning off, from
+    the reference."""
+    gamma = GaitParams().replan_gamma
+    starts = {}
+    for at_touchdown, replan in ((True, True), (False, True), (True, False)):
+        params = GaitParams(replan_at_touchdown=at_touchdown, replan=replan)
+        psp, policy, feet, state, t_lift, dt = _lifted_off(params)
+        landing = 1 - int(state.stance)
+        t_down = t_lift + float(state.step_duration)
+        landed = feet.at[landing].set(state.target)
+        pos, vel, _ = gait_lib.com_reference(state, params, psp, t_down)
+        off = jnp.array([-0.08, 0.0, 0.0]), jnp.array([-0.3, 0.0, 0.0])
+        new = gait_lib.advance(
+            state, params, psp, policy, t_down, pos + off[0], vel + off[1], landed, dt
+        )
+        assert int(new.step) == 2
+        starts[at_touchdown, replan] = (new.com_pos0, new.com_vel0, new.target)
+        blend = (pos[:2] + (1 - gamma) * off[0][:2], vel[:2] + (1 - gamma) * off[1][:2])
+        want = blend if (at_touchdown and replan) else (pos[:2], vel[:2])
+        np.testing.assert_allclose(new.com_pos0, want[0], atol=1e-12)
+        np.testing.assert_allclose(new.com_vel0, want[1], atol=1e-12)
+    # The blended start, slower, plans another footstep.
+    assert not np.allclose(starts[True, True][2], starts[False, True][2])
+    np.testing.assert_allclose(starts[True, False][2], starts[False, True][2], atol=1e-12)
+
+
 def test_touchdown_waits_for_a_late_foot_and_presses_it_down():
     """At the planned touch-down the landing foot is 3 cm up: the stance does not switch,
     the swing reference goes ``late_landing_depth`` below the target; it switches as soon

@@ -28,7 +28,8 @@ planned again from ``x_new = gamma x_d + (1 - gamma) x`` (position and velocity)
 reference restarts there, and the swing foot moves from its current desired position,
 velocity and acceleration to the new footstep (no jump; :func:`.swing.retarget_swing`).
 A capture step (below) keeps its touch-down time when it is re-planned: only its target
-moves.
+moves. With ``replan_at_touchdown``, a step whose touch-down finds the error above the
+threshold is planned from the blend too, and its CoM reference starts there.
 
 Plans that have no solution (``INFEASIBLE`` reasons) fall back to a capture step
 (:func:`capture_step`) and are counted in ``GaitState.failed_plans``; footsteps are
@@ -491,6 +492,15 @@ def advance(
     g = state.overrides.replan_gamma
     new_pos = g * ref.pos[:2] + (1 - g) * com[:2]
     new_vel = g * ref.vel[:2] + (1 - g) * com_vel[:2]
+    # A step begun at a touch-down far off the reference starts from the blend too.
+    blend_at_start = (
+        (state.phase == WALK) & (err > state.overrides.replan_threshold) & state.overrides.replan
+        if params.replan_at_touchdown
+        else jnp.zeros((), bool)
+    )
+    start_pos = jnp.where(blend_at_start, new_pos, ref.pos[:2])
+    start_vel = jnp.where(blend_at_start, new_vel, ref.vel[:2])
+    start_ref = ref._replace(pos=ref.pos.at[:2].set(start_pos), vel=ref.vel.at[:2].set(start_vel))
 
     # One plan per tick at most (a step begins, or the current one is re-planned), so the
     # policy appears once in the program.
@@ -499,8 +509,8 @@ def advance(
             params,
             psp,
             policy,
-            jnp.where(due, ref.pos[:2], new_pos),
-            jnp.where(due, ref.vel[:2], new_vel),
+            jnp.where(due, start_pos, new_pos),
+            jnp.where(due, start_vel, new_vel),
             jnp.where(due, stance_pos, state.stance_pos),
             jnp.where(due, heading, state.heading),
             jnp.where(due, _lateral_sign(stance).astype(dtype), state.lateral_sign),
@@ -530,7 +540,7 @@ def advance(
             foot_yaw=jnp.where(first, s.foot_yaw, s.foot_yaw.at[landing].set(s.next_heading))
         )
         return _start_step(
-            s, params, t, decision, stance, stance_pos, swing_pos, heading, weight0, ref
+            s, params, t, decision, stance, stance_pos, swing_pos, heading, weight0, start_ref
         )
 
     def replanned(s):

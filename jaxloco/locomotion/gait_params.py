@@ -103,6 +103,11 @@ class GaitParams:
     serves several speeds."""
     replan_min_remaining: float = 0.08
     """No replanning this close to the planned touch-down (s): the foot is landing."""
+    replan_at_touchdown: bool = False
+    """With ``replan`` on: a step whose touch-down finds Eq. 33's error above the threshold
+    is planned from Eq. 34's blend, and its CoM reference starts there, instead of from the
+    reference alone (a push that ends as the foot lands is otherwise seen only by the
+    first replan of the next swing, ``contact_blend + replan_delay`` later)."""
     com_height: Optional[float] = 0.985  # noqa: UP045 (OmegaConf needs typing.Optional)
     """Walking CoM height above the stance foot (m): the LIPM height of the gait's CoM
     reference and of the planner at run time (``make_walking_controller`` sets ``psp.h``).
