@@ -476,7 +476,13 @@ def advance(
     )
     error_time = jnp.where(over, state.error_time + dt, 0.0)
     state = state.replace(error_time=error_time)
-    replan = over & (error_time > params.replan_delay) & state.overrides.replan
+    delay = params.replan_delay
+    if params.replan_delay_behind is not None:
+        # Behind along the heading: Eq. 33's position and velocity terms, sagittal part.
+        ahead = jnp.stack([jnp.cos(state.heading), jnp.sin(state.heading)])
+        sagittal = (ref.pos[:2] - com[:2] + 0.5 * (ref.vel[:2] - com_vel[:2])) @ ahead
+        delay = jnp.where(sagittal > 0, params.replan_delay_behind, delay)
+    replan = over & (error_time > delay) & state.overrides.replan
 
     # The new step, when one is due: at the first lift-off on the current stance foot; at a
     # touch-down on the landed foot, which stands where it was measured at the height it

@@ -90,6 +90,10 @@ class GaitParams:
     (``TuneConfig(gradient="smoothed")``)."""
     replan_delay: float = 0.02
     """How long the error must stay above the threshold (s)."""
+    replan_delay_behind: Optional[float] = None  # noqa: UP045 (OmegaConf needs typing.Optional)
+    """``replan_delay`` for an error that puts the CoM behind its reference along the
+    heading (Eq. 33's sagittal component: a push from the front, which the LIPM slows
+    further); None: ``replan_delay`` in every direction."""
     replan_gamma: float = 0.2
     """Eq. 34's blend of the desired (gamma) and measured (1 - gamma) CoM state, in (0, 1).
     The paper uses 0.8, which under-reacts to a push on this model; 0.2 recovers more than
@@ -167,6 +171,11 @@ class GaitParams:
             ("step_y_range", 0 < self.step_y_range[0] < self.step_y_range[1], "(0 < low < high)"),
             *v.positive(self, "max_apex_speed", "replan_threshold"),
             *v.non_negative(self, "replan_delay", "replan_min_remaining"),
+            (
+                "replan_delay_behind",
+                self.replan_delay_behind is None or self.replan_delay_behind >= 0,
+                "None or >= 0",
+            ),
             *v.unit_interval(self, "replan_gamma"),
             ("arm_return_rate", 0 <= self.arm_return_rate < 100, "in [0, 100)"),
             (
@@ -220,6 +229,7 @@ _GAIT_TIMES = (
     "fallback_duration",
     "max_touchdown_delay",
     "replan_delay",
+    "replan_delay_behind",
     "replan_min_remaining",
 )
 _GAIT_VELOCITIES = ("start_speed", "max_apex_speed")
