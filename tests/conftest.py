@@ -60,7 +60,11 @@ def pytest_addoption(parser):
 # ``--no-loadscope-reorder`` so xdist keeps it): the longest first, so no long file starts
 # last while the other worker idles. Measured on 2 cores (s of test time):
 # locomotion 654, wblc 538, tuning 429, docs 326, sweep 242, robot_models 200, dynamics 167,
-# training 112, the rest < 90.
+# training 112, the rest < 90. The order also decides which file compiles a shared program
+# and which reads it from the run's cache: files ordered by their own times instead
+# (docs, wblc, locomotion, tuning, dynamics, ...) balanced the workers (704 and 705 s busy)
+# and took 725 s against 608, the files that had read the walking tick from the cache
+# compiling it themselves (the main-job limit test 24 -> 53 s).
 LONGEST_FIRST = (
     "test_locomotion",
     "test_wblc",
