@@ -498,15 +498,16 @@ def advance(
     g = state.overrides.replan_gamma
     new_pos = g * ref.pos[:2] + (1 - g) * com[:2]
     new_vel = g * ref.vel[:2] + (1 - g) * com_vel[:2]
-    # A step begun at a touch-down far off the reference starts from the blend too.
-    blend_at_start = (
-        (state.phase == WALK) & (err > state.overrides.replan_threshold) & state.overrides.replan
-        if params.replan_at_touchdown
-        else jnp.zeros((), bool)
-    )
-    start_pos = jnp.where(blend_at_start, new_pos, ref.pos[:2])
-    start_vel = jnp.where(blend_at_start, new_vel, ref.vel[:2])
-    start_ref = ref._replace(pos=ref.pos.at[:2].set(start_pos), vel=ref.vel.at[:2].set(start_vel))
+    # A step begun at a touch-down far off the reference starts from the blend too (off:
+    # nothing added to the program).
+    start_ref = ref
+    if params.replan_at_touchdown:
+        far = err > state.overrides.replan_threshold
+        blend = (state.phase == WALK) & far & state.overrides.replan
+        start_ref = ref._replace(
+            pos=ref.pos.at[:2].set(jnp.where(blend, new_pos, ref.pos[:2])),
+            vel=ref.vel.at[:2].set(jnp.where(blend, new_vel, ref.vel[:2])),
+        )
 
     # One plan per tick at most (a step begins, or the current one is re-planned), so the
     # policy appears once in the program.
@@ -515,8 +516,8 @@ def advance(
             params,
             psp,
             policy,
-            jnp.where(due, start_pos, new_pos),
-            jnp.where(due, start_vel, new_vel),
+            jnp.where(due, start_ref.pos[:2], new_pos),
+            jnp.where(due, start_ref.vel[:2], new_vel),
             jnp.where(due, stance_pos, state.stance_pos),
             jnp.where(due, heading, state.heading),
             jnp.where(due, _lateral_sign(stance).astype(dtype), state.lateral_sign),

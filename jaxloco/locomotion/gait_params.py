@@ -91,7 +91,7 @@ class GaitParams:
     replan_delay: float = 0.02
     """How long the error must stay above the threshold (s)."""
     replan_delay_behind: Optional[float] = None  # noqa: UP045 (OmegaConf needs typing.Optional)
-    """``replan_delay`` for an error that puts the CoM behind its reference along the
+    """``replan_delay`` (s) for an error that puts the CoM behind its reference along the
     heading (Eq. 33's sagittal component: a push from the front, which the LIPM slows
     further); None: ``replan_delay`` in every direction."""
     replan_gamma: float = 0.2
